@@ -1,0 +1,81 @@
+"""`flipviz bench` settings (parsed by tyro in flipviz/cli.py) and the parsing of its lists."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from flipviz.training.config import METHODS
+
+
+@dataclass
+class BenchConfig:
+    """Reproduce the paper's Table III (and Table II with --ablation): many runs, resumable."""
+
+    scenes: str = "chair,mug"
+    """Comma-separated scenes: built-in names, or Blender-format folders <data-root>/<scene>."""
+    data_root: Path | None = None
+    """Folder holding Blender-format scenes (e.g. .../nerf_synthetic) for non-built-in names."""
+    methods: str = "all"
+    """Comma-separated methods (bl, bl+u, flip, flip+u, upper) or 'all'."""
+    configs: str = "1-8"
+    """Protocol configurations: '1-8', '1,3,5' or '2'."""
+    res: int = 100
+    """Image width in pixels."""
+    steps: int = 3000
+    """Optimisation steps per run."""
+    field: Literal["grid", "nerf"] = "grid"
+    """Radiance field of every run (grid: fast dense voxel grid; nerf: the paper's MLP)."""
+    out: Path = Path("bench")
+    """Output folder: results.csv/json, table.md, figures, runs/<key>/ (one folder per run)."""
+    workers: int = 1
+    """Runs at once on this machine (local executor); each gets cores // workers threads."""
+    executor: Literal["local", "ray"] = "local"
+    """local: processes on this machine; ray: tasks on a Ray cluster (pip install flipviz[cluster])."""
+    address: str | None = None
+    """Ray cluster address (e.g. 'auto' or 'ray://host:10001'); default: start a local Ray."""
+    cpus_per_run: int = 0
+    """Threads (and Ray CPUs) per run; 0: cores // workers (local) or 1 (ray)."""
+    ablation: bool = False
+    """Also run Table II: Flip+U with bundle adjustment and uncertainty each on/off."""
+    seed: int = 0
+    """Seed of every run (each run is independent and seeded)."""
+    device: str = "cpu"
+    """Device of every run: cpu | cuda | cuda:N."""
+    retry_failed: bool = True
+    """On restart, run failed runs again (finished runs are always skipped)."""
+    keep_checkpoints: bool = False
+    """Keep each finished run's checkpoint.pt (large); by default only results and renders stay."""
+    grid_views: int = 4
+    """Unobserved views shown in the qualitative grid."""
+    quiet: bool = False
+    """No progress bars (the log lines stay)."""
+
+
+def parse_list(text: str) -> list[str]:
+    return [s.strip() for s in text.split(",") if s.strip()]
+
+
+def parse_methods(text: str) -> list[str]:
+    names = parse_list(text.lower())
+    if names == ["all"]:
+        return list(METHODS)
+    bad = [m for m in names if m not in METHODS]
+    if bad or not names:
+        raise ValueError(f"unknown method(s) {bad or text!r}: choose from {', '.join(METHODS)} or 'all'")
+    return list(dict.fromkeys(names))
+
+
+def parse_configs(text: str) -> list[int]:
+    """'1-8' -> [1..8]; '1,3,5' -> [1, 3, 5]; ranges and lists may mix ('1-3,7')."""
+    out: list[int] = []
+    try:
+        for part in parse_list(text):
+            lo, _, hi = part.partition("-")
+            out += list(range(int(lo), int(hi) + 1)) if hi else [int(lo)]
+    except ValueError:
+        raise ValueError(f"--configs must look like '1-8' or '1,3,5', got {text!r}") from None
+    if not out or any(n < 1 or n > 8 for n in out):
+        raise ValueError(f"--configs must be protocol configurations in 1..8, got {text!r}")
+    return list(dict.fromkeys(out))

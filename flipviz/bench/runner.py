@@ -1,0 +1,202 @@
+"""Plan the bench's runs, skip the finished ones, execute the rest, then write the reports.
+
+Every run has a key: a hash of its full training configuration (scene, data path, method,
+configuration, resolution, steps, seed, flags). Its folder is <out>/runs/<key>/ and it is done
+when <out>/runs/<key>/result.json says status "ok"; a killed bench loses only runs in flight.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from flipviz.bench.config import BenchConfig, parse_configs, parse_list, parse_methods
+from flipviz.bench.executors import RESULT_FILE, RunTask, run_local, run_ray, write_json_atomic
+from flipviz.data.dataset import DatasetError
+from flipviz.training.config import TrainConfig
+
+# TrainConfig fields that change where a run writes or what it logs, not what it computes.
+NOT_IN_KEY = ("out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop")
+ABLATION = ((False, False), (True, False), (False, True), (True, True))  # (BA, U), Table II order
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One training of the bench. `ba` / `uncertainty` are the TrainConfig flags."""
+
+    scene: str  # the name shown in tables (built-in name or folder name)
+    data: str | None  # absolute Blender-format folder, None for a built-in scene
+    method: str
+    config: int
+    ba: bool = True
+    uncertainty: bool = True
+
+    def train_config(self, cfg: BenchConfig, out: Path | None = None) -> TrainConfig:
+        return TrainConfig(
+            scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
+            config=self.config, res=cfg.res, steps=cfg.steps, field=cfg.field, ba=self.ba,
+            uncertainty=self.uncertainty, seed=cfg.seed, device=cfg.device, out=out, no_rrd=True,
+            images_every=0,  # nobody watches: skip the periodic test renders
+        )  # fmt: skip
+
+    def key(self, cfg: BenchConfig) -> str:
+        d = {k: v for k, v in self.train_config(cfg).to_dict().items() if k not in NOT_IN_KEY}
+        return f"{self.scene}-{self.method.replace('+', 'u')}-c{self.config}-" + hashlib.sha1(
+            json.dumps(d, sort_keys=True).encode()
+        ).hexdigest()[:12]
+
+    def labels(self) -> dict:
+        """What the tables need, with the flags the method really uses (e.g. B/L has no BA)."""
+        flip = self.method in ("flip", "flip+u")
+        return {
+            "scene": self.scene, "data": self.data or "", "method": self.method, "config": self.config,
+            "ba": flip and self.ba, "uncertainty": self.method in ("bl+u", "flip+u") and self.uncertainty,
+            "default_flags": self.ba and self.uncertainty,
+        }  # fmt: skip
+
+
+def builtin_scene_names() -> list[str]:
+    try:
+        from flipviz.data import builtin
+
+        names = getattr(builtin, "SCENE_NAMES", None) or getattr(builtin, "BUILTIN_SCENES", None)
+        if names:
+            return list(names)
+    except ImportError:
+        pass
+    from flipviz.data.scenes import SCENES
+
+    return list(SCENES)
+
+
+def resolve_scene(name: str, data_root: Path | None) -> tuple[str, str | None]:
+    """(table name, folder or None). Built-in names win; a path, or <data-root>/<name>, is a folder."""
+    if name in builtin_scene_names():
+        return name, None
+    p = Path(name).expanduser()
+    if not (os.sep in name or p.is_dir()):
+        if data_root is None:
+            raise DatasetError(
+                f"scene {name!r} is not built-in ({', '.join(builtin_scene_names())}); pass --data-root DIR holding {name}/"
+            )
+        p = Path(data_root).expanduser() / name
+    if not (p / "transforms_test.json").is_file():
+        raise DatasetError(f"scene {name!r}: no transforms_test.json in {p} (the protocol needs the 200-view test orbit)")
+    return p.name, str(p.resolve())
+
+
+def plan(cfg: BenchConfig) -> list[RunSpec]:
+    """Every run of the bench, each once, in order scene -> configuration -> method."""
+    if cfg.res < 8 or cfg.steps < 1 or cfg.workers < 1:
+        raise ValueError("--res must be >= 8, --steps >= 1 and --workers >= 1")
+    methods, configs = parse_methods(cfg.methods), parse_configs(cfg.configs)
+    scenes = [resolve_scene(s, cfg.data_root) for s in parse_list(cfg.scenes)]
+    if not scenes:
+        raise ValueError("--scenes is empty")
+    specs: dict[str, RunSpec] = {}
+    for scene, data in scenes:
+        for n in configs:
+            for m in methods:
+                s = RunSpec(scene, data, m, n)
+                specs.setdefault(s.key(cfg), s)
+            if cfg.ablation:  # Table II: Flip (no U) / Flip+U, each with and without BA
+                for ba, u in ABLATION:
+                    s = RunSpec(scene, data, "flip+u" if u else "flip", n, ba=ba)
+                    specs.setdefault(s.key(cfg), s)
+    return list(specs.values())
+
+
+def read_result(run_dir: Path) -> dict | None:
+    try:
+        return json.loads((run_dir / RESULT_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _prewarm(specs: list[RunSpec], res: int) -> None:
+    """Load each scene once here, so parallel runs share the render cache instead of racing."""
+    try:
+        from flipviz.data import load_scene
+    except ImportError:
+        return
+    for scene, data in dict.fromkeys((s.scene, s.data) for s in specs):
+        load_scene(scene, Path(data) if data else None, res)
+
+
+def log(msg: str, logfile: Path | None = None) -> None:
+    from tqdm import tqdm
+
+    tqdm.write(f"[bench] {msg}", file=sys.stderr)
+    if logfile is not None:
+        with open(logfile, "a") as f:
+            f.write(time.strftime("%Y-%m-%d %H:%M:%S ") + msg + "\n")
+
+
+def run_bench(cfg: BenchConfig) -> Path:
+    """Run (or resume) the bench and write results.csv/json, table.md and the figures in cfg.out."""
+    from tqdm import tqdm
+
+    from flipviz.bench.figures import write_figures
+    from flipviz.bench.tables import write_reports
+
+    specs = plan(cfg)
+    out = Path(cfg.out).expanduser().resolve()
+    (out / "runs").mkdir(parents=True, exist_ok=True)
+    logfile = out / "bench.log"
+    write_json_atomic(out / "bench.json", {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()})
+
+    keys = [s.key(cfg) for s in specs]
+    results: dict[str, dict] = {}
+    todo: list[tuple[str, RunSpec]] = []
+    for key, spec in zip(keys, specs):
+        r = read_result(out / "runs" / key)
+        if r is not None and (r.get("status") == "ok" or not cfg.retry_failed):
+            results[key] = r
+            log(f"skipped {key}: already {r.get('status')} (run {r.get('run_id', '?')[:8]})", logfile)
+        else:
+            todo.append((key, spec))
+    log(f"{len(specs)} runs planned: {len(results)} skipped (already done), {len(todo)} to run", logfile)
+
+    if todo:
+        _prewarm([s for _, s in todo], cfg.res)
+        threads = cfg.cpus_per_run or (max(1, (os.cpu_count() or 1) // cfg.workers) if cfg.executor == "local" else 1)
+        tasks = [
+            RunTask(key=k, run_dir=str(out / "runs" / k), train=s.train_config(cfg, out / "runs" / k).to_dict(),
+                    labels=s.labels(), threads=threads, progress=not cfg.quiet,
+                    keep_checkpoint=cfg.keep_checkpoints)
+            for k, s in todo
+        ]  # fmt: skip
+        bar = tqdm(total=len(specs), initial=len(results), desc="bench", unit="run", position=0,
+                   dynamic_ncols=True, disable=cfg.quiet, file=sys.stderr)  # fmt: skip
+
+        def on_result(res: dict) -> None:
+            key = res["key"]
+            if read_result(out / "runs" / key) is None:  # e.g. a died worker: record it here
+                write_json_atomic(out / "runs" / key / RESULT_FILE, res)
+            results[key] = res
+            bar.update(1)
+            if res.get("status") == "ok":
+                log(f"done {key}: PSNR {res.get('psnr', float('nan')):.2f} in {res.get('train_seconds') or 0:.0f} s", logfile)
+            else:
+                log(f"FAILED {key}: {res.get('error', '')}", logfile)
+
+        try:
+            if cfg.executor == "ray":
+                gpus = 1.0 if cfg.device.startswith("cuda") else 0.0
+                run_ray(tasks, cfg.address, cpus_per_run=threads, gpus_per_run=gpus, on_result=on_result)
+            else:
+                run_local(tasks, cfg.workers, on_result)
+        finally:
+            bar.close()
+
+    rows = [results[k] for k in keys if k in results]
+    write_reports(out, rows, cfg)
+    write_figures(out, rows, cfg)
+    n_ok = sum(r.get("status") == "ok" for r in rows)
+    log(f"{n_ok}/{len(specs)} runs ok; reports in {out}", logfile)
+    return out

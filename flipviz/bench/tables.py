@@ -1,0 +1,224 @@
+"""The bench's reports: results.csv, results.json and table.md (paper Table III and Table II)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+from flipviz.bench.config import BenchConfig
+from flipviz.bench.executors import write_json_atomic
+from flipviz.bench.paper_numbers import METHOD_LABELS, METHOD_ORDER, TABLE2, TABLE3, paper_row
+
+CSV_FIELDS = (
+    "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "train_seconds", "steps",
+    "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
+    "flipviz_version", "torch_version", "numpy_version",
+)  # fmt: skip
+METRICS = ("psnr", "ssim", "lpips")
+DIGITS = {"psnr": 2, "ssim": 3, "lpips": 3}
+
+
+def flat_row(r: dict) -> dict:
+    """One results.csv row of a run's result."""
+    tc, v = r.get("train_config", {}), r.get("versions", {})
+    row = {k: r.get(k) for k in CSV_FIELDS}
+    row.update(res=tc.get("res"), seed=tc.get("seed"), field=tc.get("field"), device=tc.get("device"),
+               flipviz_version=v.get("flipviz"), torch_version=v.get("torch"), numpy_version=v.get("numpy"))  # fmt: skip
+    if row["lpips"] is None and r.get("status") == "ok":
+        row["lpips"] = "unavailable"
+    return row
+
+
+def _mean(xs: list) -> float | str | None:
+    """Mean of numbers; "unavailable" if any value is a string (LPIPS without weights)."""
+    if not xs:
+        return None
+    if any(isinstance(x, str) or x is None for x in xs):
+        return "unavailable"
+    return sum(xs) / len(xs)
+
+
+def _fmt(x, metric: str) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, str):
+        return "n/a"
+    return "nan" if math.isnan(x) else f"{x:.{DIGITS[metric]}f}"
+
+
+def _ok(rows: list[dict]) -> list[dict]:
+    return [r for r in rows if r.get("status") == "ok"]
+
+
+def main_rows(rows: list[dict], scene: str, method: str) -> list[dict]:
+    """Table III runs: the method with its default flags (BA and U on where it has them)."""
+    return [r for r in _ok(rows) if r["scene"] == scene and r["method"] == method and r.get("default_flags", True)]
+
+
+def ablation_rows(rows: list[dict], scene: str, ba: bool, u: bool) -> list[dict]:
+    return [
+        r for r in _ok(rows)
+        if r["scene"] == scene and r["method"] in ("flip", "flip+u") and r["ba"] == ba and r["uncertainty"] == u
+    ]  # fmt: skip
+
+
+def _scenes(rows: list[dict]) -> list[str]:
+    return list(dict.fromkeys(r["scene"] for r in rows))
+
+
+def _is_nerf_synthetic(rows: list[dict], scene: str) -> str | None:
+    """The paper's row name if `scene` was read from a folder with a NeRF-synthetic name."""
+    folder = next((r.get("data") for r in rows if r["scene"] == scene), "")
+    return paper_row(scene) if folder else None
+
+
+def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
+    """Markdown like the paper's Table III: per scene and method, mean over configurations."""
+    scenes = _scenes(rows)
+    head = ["Scene"] + [f"{m.upper()} {METHOD_LABELS[x]}" for m in METRICS for x in methods]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    ours: dict[tuple, list] = {}
+    papers: dict[tuple, list] = {}
+    for scene in scenes:
+        prow = _is_nerf_synthetic(rows, scene)
+        cells = [scene + (f" ({prow})" if prow and prow.lower() != scene.lower() else "")]
+        for metric in METRICS:
+            for m in methods:
+                rs = main_rows(rows, scene, m)
+                v = _mean([r[metric] for r in rs])
+                if v is not None:
+                    ours.setdefault((metric, m), []).append(v)
+                cell = _fmt(v, metric)
+                if rs and len(rs) < n_configs:
+                    cell += f" †{len(rs)}/{n_configs}"
+                if prow:
+                    p = TABLE3[metric][prow][m]
+                    papers.setdefault((metric, m), []).append(p)
+                    cell += f" ({p:.{DIGITS[metric]}f})"
+                cells.append(cell)
+        lines.append("| " + " | ".join(cells) + " |")
+    all_paper = all(_is_nerf_synthetic(rows, s) for s in scenes)
+    cells = ["**Mean**"]
+    for metric in METRICS:
+        for m in methods:
+            cell = _fmt(_mean(ours.get((metric, m), [])), metric)
+            if all_paper and papers.get((metric, m)):
+                cell += f" ({_fmt(_mean(papers[(metric, m)]), metric)})"
+            cells.append(cell)
+    lines.append("| " + " | ".join(cells) + " |")
+    lines.append(
+        "| Paper mean (8 scenes) | "
+        + " | ".join(f"({TABLE3[metric]['Mean'][m]:.{DIGITS[metric]}f})" for metric in METRICS for m in methods)
+        + " |"
+    )
+    return "\n".join(lines)
+
+
+def table2(rows: list[dict]) -> str:
+    """Markdown like the paper's Table II: Flip+U with bundle adjustment / uncertainty on and off."""
+    from flipviz.bench.runner import ABLATION
+
+    scenes = _scenes(rows)
+    lines = [
+        "| bundle adjustment | uncertainty | PSNR | SSIM | LPIPS | runs | paper PSNR | paper SSIM | paper LPIPS |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for ba, u in ABLATION:
+        per_scene = {m: [] for m in METRICS}
+        n = 0
+        for scene in scenes:
+            rs = ablation_rows(rows, scene, ba, u)
+            n += len(rs)
+            for m in METRICS:
+                v = _mean([r[m] for r in rs])
+                if v is not None:
+                    per_scene[m].append(v)
+        p = TABLE2[(ba, u)]
+        tick = lambda b: "✓" if b else "-"  # noqa: E731
+        ours = " | ".join(_fmt(_mean(per_scene[m]), m) for m in METRICS)
+        lines.append(f"| {tick(ba)} | {tick(u)} | {ours} | {n} | {p['psnr']:.3f} | {p['ssim']:.3f} | {p['lpips']:.3f} |")
+    return "\n".join(lines)
+
+
+def per_config_table(rows: list[dict], methods: list[str]) -> str:
+    head = ["Scene", "Config"] + [METHOD_LABELS[m] for m in methods]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for scene in _scenes(rows):
+        for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
+            cells = [scene, str(n)]
+            for m in methods:
+                rs = [r for r in main_rows(rows, scene, m) if r["config"] == n]
+                cells.append(_fmt(rs[0]["psnr"], "psnr") if rs else "-")
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def time_table(rows: list[dict], methods: list[str]) -> str:
+    head = ["Scene"] + [METHOD_LABELS[m] for m in methods]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for scene in _scenes(rows):
+        cells = [scene]
+        for m in methods:
+            ts = [r["train_seconds"] for r in main_rows(rows, scene, m) if r.get("train_seconds") is not None]
+            cells.append(f"{sum(ts) / len(ts):.0f}" if ts else "-")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
+    from flipviz.bench.config import parse_configs, parse_methods
+
+    methods = [m for m in METHOD_ORDER if m in parse_methods(cfg.methods)]
+    configs = parse_configs(cfg.configs)
+    n_ok = len(_ok(rows))
+    failed = [r for r in rows if r.get("status") != "ok"]
+    lpips_na = any(r.get("lpips") in (None, "unavailable") for r in _ok(rows))
+    versions = next((r.get("versions") for r in _ok(rows) if r.get("versions")), {})
+    parts = [
+        "# flipviz bench: Just Flip, paper Table III" + (" and Table II" if cfg.ablation else ""),
+        "",
+        f"Settings: field `{cfg.field}`, {cfg.res} px, {cfg.steps} steps, seed {cfg.seed}, device `{cfg.device}`, "
+        f"configurations {', '.join(map(str, configs))}. {n_ok}/{len(rows)} runs ok. "
+        f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items()) or 'n/a'}.",
+        "",
+        "## Table III: unobserved views, mean over configurations",
+        "",
+        "Cells: ours (paper). The paper's numbers are shown for NeRF-synthetic scenes read from a folder;"
+        " the paper trained vanilla NeRF for 50k iterations, so compare trends, not values."
+        " †k/n: only k of n configurations finished."
+        + (" LPIPS n/a: AlexNet/LPIPS weights were not available." if lpips_na else ""),
+        "",
+        table3(rows, methods, len(configs)),
+        "",
+    ]
+    if cfg.ablation:
+        parts += ["## Table II: ablation of Flip+U (mean over scenes and configurations)", "", table2(rows), ""]
+    parts += ["## PSNR per configuration", "", per_config_table(rows, methods), ""]
+    parts += ["## Mean training time per run (s)", "", time_table(rows, methods), ""]
+    if failed:
+        parts += ["## Failed runs", ""]
+        parts += [f"- `{r['key']}` ({r['scene']} {r['method']} cfg {r['config']}): {r.get('error', '')}" for r in failed]
+        parts.append("")
+    return "\n".join(parts)
+
+
+def write_reports(out: Path, rows: list[dict], cfg: BenchConfig) -> None:
+    """results.csv, results.json and table.md in `out`, each written atomically."""
+    flat = [flat_row(r) for r in rows]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=CSV_FIELDS)
+    w.writeheader()
+    w.writerows(flat)
+    _write_text(out / "results.csv", buf.getvalue())
+    bench = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()}
+    write_json_atomic(out / "results.json", {"bench": bench, "runs": rows})
+    _write_text(out / "table.md", render_markdown(rows, cfg))
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)

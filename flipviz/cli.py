@@ -1,0 +1,81 @@
+"""The `flipviz` command line: one tyro CLI with a subcommand per tool.
+
+    flipviz train --scene chair --method flip+u --config 3
+    flipviz app --scene mug                  (same as `python app.py --scene mug`)
+    flipviz bench --scenes chair,lego --data-root ../shared/data/nerf_synthetic
+    flipviz export-scene chair out/chair
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import tyro
+
+from flipviz.data.dataset import DatasetError
+from flipviz.training.config import TrainConfig
+
+
+@dataclass
+class ExportScene:
+    """Write a built-in scene in the Blender format (transforms_test.json + PNGs)."""
+
+    scene: Annotated[str, tyro.conf.Positional]
+    """Built-in scene name."""
+    out_dir: Annotated[Path, tyro.conf.Positional]
+    """Folder to write."""
+    res: int = 100
+    """Image width in pixels."""
+
+
+def _train(cfg: TrainConfig) -> int:
+    from flipviz.training.run import resolve_run_dir, train
+
+    cfg.out = resolve_run_dir(cfg)
+    observers = []
+    if not cfg.no_rrd:
+        from flipviz.viz.rerun_observer import make_rerun_observer
+
+        observers.append(make_rerun_observer(cfg, cfg.out))
+    metrics = train(cfg, extra_observers=observers)
+    print(f"run folder: {cfg.out}")
+    return 0 if metrics.get("status", "finished") in ("finished", "stopped") else 1
+
+
+def _export(cmd: ExportScene) -> int:
+    from flipviz.data.blender import export_scene
+
+    export_scene(cmd.scene, cmd.out_dir, res=cmd.res)
+    print(f"wrote {cmd.scene} to {cmd.out_dir}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from flipviz.bench import BenchConfig, run_bench
+    from flipviz.viz.viser_app import AppConfig, run_app
+
+    cmd = tyro.extras.subcommand_cli_from_dict(
+        {"train": TrainConfig, "app": AppConfig, "bench": BenchConfig, "export-scene": ExportScene},
+        args=argv,
+        description=__doc__,
+    )
+    try:
+        if isinstance(cmd, AppConfig):  # AppConfig extends TrainConfig: test it first
+            run_app(cmd)
+            return 0
+        if isinstance(cmd, TrainConfig):
+            return _train(cmd)
+        if isinstance(cmd, BenchConfig):
+            print(f"results: {run_bench(cmd)}")
+            return 0
+        return _export(cmd)
+    except DatasetError as e:
+        print(f"flipviz: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,173 @@
+"""Read and write the Blender / NeRF-synthetic format: transforms_{split}.json + RGBA PNGs.
+
+transforms_{split}.json holds `camera_angle_x` (horizontal field of view, radians) and `frames`,
+each with `file_path` (relative to the folder, usually without extension) and `transform_matrix`
+(4x4 OpenGL camera-to-world, the flipviz convention itself). The orbit index of a frame is its
+position in `frames`, unless every frame carries an `orbit_index` (written by `write_blender`
+when the views are not the contiguous orbit 0..N-1).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Iterable
+
+import cv2
+import numpy as np
+
+from flipviz.data.cameras import Camera, View
+from flipviz.data.dataset import DatasetError, SceneData
+
+NEAR, FAR = 2.0, 6.0
+BBOX = np.array([[-1.5, -1.5, -1.5], [1.5, 1.5, 1.5]])
+
+
+def _read_rgba(path: Path) -> np.ndarray:
+    """Image file -> float32 (H, W, 4) RGBA in [0, 1] (alpha 1 for RGB files)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise DatasetError(f"cannot read image {path}")
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        shape = "grayscale" if img.ndim == 2 else f"{img.shape[2]}-channel"
+        raise DatasetError(f"image {path} is {shape}; RGB or RGBA images are required")
+    scale = float(np.iinfo(img.dtype).max) if np.issubdtype(img.dtype, np.integer) else 1.0
+    img = img.astype(np.float32) / scale
+    if img.shape[2] == 3:
+        return np.concatenate([cv2.cvtColor(img, cv2.COLOR_BGR2RGB), np.ones_like(img[..., :1])], axis=-1)
+    return cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
+
+
+def _composite(rgba: np.ndarray, width: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """RGBA -> (rgb on white, alpha), optionally resized to `width` with area averaging.
+
+    Resizing is done on the alpha-premultiplied colour (c * a) and on a, then c_white = c*a + 1 - a,
+    which is exactly the area average of the composited image.
+    """
+    a = rgba[..., 3:4]
+    premult = np.concatenate([rgba[..., :3] * a, a], axis=-1)
+    H, W = rgba.shape[:2]
+    if width is not None and width != W:
+        height = max(1, round(H * width / W))
+        premult = cv2.resize(premult, (width, height), interpolation=cv2.INTER_AREA)
+    a = np.clip(premult[..., 3], 0.0, 1.0)
+    rgb = np.clip(premult[..., :3] + (1.0 - a[..., None]), 0.0, 1.0)
+    return rgb.astype(np.float32), a.astype(np.float32)
+
+
+def _image_path(root: Path, file_path: str) -> Path:
+    p = root / file_path
+    if p.suffix.lower() in (".png", ".jpg", ".jpeg"):
+        return p
+    return p.with_name(p.name + ".png")
+
+
+def load_blender(
+    path: str | os.PathLike, split: str = "test", res: int | None = None, indices: Iterable[int] | None = None
+) -> SceneData:
+    """Read a Blender-format folder's `split` orbit; optionally downscale to width `res`.
+
+    `indices` restricts which orbit indices are loaded (default: all frames).
+    """
+    root = Path(path)
+    if not root.is_dir():
+        raise DatasetError(f"scene folder not found: {root}")
+    jpath = root / f"transforms_{split}.json"
+    if not jpath.is_file():
+        raise DatasetError(f"{jpath.name} not found in {root}")
+    try:
+        meta = json.loads(jpath.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{jpath} is not valid JSON ({str(e).splitlines()[0]})") from None
+    if res is not None and (isinstance(res, bool) or not isinstance(res, (int, np.integer)) or res < 1):
+        raise DatasetError(f"resolution must be a positive integer, got {res!r}")
+
+    try:
+        angle_x = float(meta["camera_angle_x"])
+        frames = list(meta["frames"])
+        if not frames:
+            raise ValueError("no frames")
+        entries = []
+        for k, fr in enumerate(frames):
+            c2w = np.asarray(fr["transform_matrix"], dtype=np.float64)
+            if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+                raise ValueError(f"frame {k}: transform_matrix is not a finite 4x4 matrix")
+            entries.append((int(fr["orbit_index"]) if "orbit_index" in fr else k, str(fr["file_path"]), c2w))
+    except (KeyError, TypeError, ValueError) as e:
+        what = f"missing key {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]
+        raise DatasetError(f"{jpath} is malformed: {what}") from None
+    if not all("orbit_index" in fr for fr in frames):  # all or nothing: else frame order
+        entries = [(k, fp, c2w) for k, (_, fp, c2w) in enumerate(entries)]
+    if not (0.0 < angle_x < np.pi):
+        raise DatasetError(f"{jpath} is malformed: camera_angle_x = {angle_x} is not in (0, pi)")
+    if len({i for i, _, _ in entries}) != len(entries):
+        raise DatasetError(f"{jpath} is malformed: repeated orbit_index")
+    if indices is not None:
+        keep = {int(i) for i in indices}
+        entries = [e for e in entries if e[0] in keep]
+
+    views: dict[int, View] = {}
+    size = None
+    for index, file_path, c2w in entries:
+        ipath = _image_path(root, file_path)
+        if not ipath.is_file():
+            raise DatasetError(f"image {ipath} listed in {jpath.name} not found")
+        rgba = _read_rgba(ipath)
+        if size is None:
+            size = rgba.shape[:2]
+        elif rgba.shape[:2] != size:
+            raise DatasetError(
+                f"images have inconsistent sizes: {ipath.name} is {rgba.shape[1]}x{rgba.shape[0]}, expected {size[1]}x{size[0]}"
+            )
+        rgb, alpha = _composite(rgba, res)
+        H, W = rgb.shape[:2]
+        focal = 0.5 * W / np.tan(0.5 * angle_x)
+        views[index] = View(Camera(c2w, W, H, float(focal), name=Path(file_path).name), rgb, alpha, index=index)
+
+    return SceneData(
+        name=root.name,
+        views=views,
+        near=NEAR,
+        far=FAR,
+        bbox=BBOX.copy(),
+        symmetry_plane=None,
+        source=str(root),
+        meta={"split": split, "camera_angle_x": angle_x},
+    )
+
+
+def write_blender(scene: SceneData, out_dir: str | os.PathLike, split: str = "test") -> Path:
+    """Write `scene` as a Blender-format folder (8-bit RGBA PNGs + transforms_{split}.json)."""
+    out = Path(out_dir)
+    (out / split).mkdir(parents=True, exist_ok=True)
+    idx = sorted(scene.views)
+    contiguous = idx == list(range(len(idx)))
+    frames = []
+    for i in idx:
+        v = scene.views[i]
+        a = np.ones(v.rgb.shape[:2], np.float32) if v.alpha is None else v.alpha
+        # un-composite: c_white = c a + 1 - a  =>  c = (c_white - 1 + a) / a where a > 0
+        c = np.where(a[..., None] > 0, (v.rgb - 1.0 + a[..., None]) / np.maximum(a[..., None], 1e-8), 0.0)
+        rgba = np.concatenate([np.clip(c, 0, 1), a[..., None]], axis=-1)
+        png = np.round(rgba * 255.0).astype(np.uint8)
+        name = f"r_{i}"
+        if not cv2.imwrite(str(out / split / f"{name}.png"), cv2.cvtColor(png, cv2.COLOR_RGBA2BGRA)):
+            raise DatasetError(f"cannot write {out / split / name}.png")
+        frame = {"file_path": f"./{split}/{name}", "transform_matrix": v.camera.c2w.tolist()}
+        if not contiguous:
+            frame["orbit_index"] = i
+        frames.append(frame)
+    first = scene.views[idx[0]].camera
+    doc = {"camera_angle_x": first.fov_x, "frames": frames}
+    tmp = out / f".transforms_{split}.json.tmp"
+    tmp.write_text(json.dumps(doc, indent=2))
+    os.replace(tmp, out / f"transforms_{split}.json")
+    return out
+
+
+def export_scene(name: str, out_dir: str | os.PathLike, res: int = 100) -> Path:
+    """Write built-in scene `name` (the full first turn, orbit indices 0..99) in Blender format."""
+    from flipviz.data.builtin import load_builtin  # local import: builtin is the heavier module
+
+    return write_blender(load_builtin(name, res, indices=range(100)), out_dir, split="test")

@@ -1,0 +1,122 @@
+"""The one camera convention of flipviz. Every module uses it; nothing converts.
+
+World frame: right-handed, +z up (as in Blender and the NeRF-synthetic scenes); objects sit
+near the origin inside roughly [-1.5, 1.5]^3.
+
+Camera frame: OpenGL / Blender, as stored in `transforms_*.json`: `c2w` is a 4x4
+camera-to-world matrix whose rotation columns are the camera's +x (right), +y (up) and +z
+(backwards: the camera looks along -z) axes in world coordinates; its last column is the
+camera centre.
+
+Intrinsics: ideal pinhole, square pixels, fx = fy = `focal` (pixels), principal point at the
+image centre. Pixel (u, v) (u = column to the right, v = row downwards) has its centre at
+(u + 0.5, v + 0.5). The camera-frame ray through it is
+    d_cam = ((u + 0.5 - W/2) / f, -(v + 0.5 - H/2) / f, -1).
+
+Images: float32 RGB in [0, 1], shape (H, W, 3), composited on a white background; alpha, where
+known, is float32 (H, W) in [0, 1].
+
+A horizontal image flip (u -> W-1-u) is exactly the image of the camera whose x axis is negated
+(an improper "camera"); see `flipviz.geometry.mirror` for how a proper mirrored pose is built.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import torch
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A posed pinhole camera in the flipviz convention (see module docstring)."""
+
+    c2w: np.ndarray  # (4, 4) float64, camera-to-world, OpenGL axes
+    width: int
+    height: int
+    focal: float  # pixels
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        c2w = np.asarray(self.c2w, dtype=np.float64)
+        if c2w.shape == (3, 4):
+            c2w = np.concatenate([c2w, [[0.0, 0.0, 0.0, 1.0]]], axis=0)
+        if c2w.shape != (4, 4):
+            raise ValueError(f"camera {self.name!r}: c2w must be 4x4 or 3x4, got {c2w.shape}")
+        object.__setattr__(self, "c2w", c2w)
+
+    @property
+    def center(self) -> np.ndarray:
+        return self.c2w[:3, 3].copy()
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return self.c2w[:3, :3].copy()
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 intrinsics for a y-down image (OpenCV/Rerun/viser style pixel coordinates)."""
+        return np.array(
+            [[self.focal, 0.0, self.width / 2.0], [0.0, self.focal, self.height / 2.0], [0.0, 0.0, 1.0]]
+        )
+
+    @property
+    def fov_y(self) -> float:
+        """Vertical field of view in radians."""
+        return 2.0 * float(np.arctan(0.5 * self.height / self.focal))
+
+    @property
+    def fov_x(self) -> float:
+        return 2.0 * float(np.arctan(0.5 * self.width / self.focal))
+
+    def with_pose(self, c2w: np.ndarray, name: str | None = None) -> "Camera":
+        return replace(self, c2w=np.asarray(c2w, dtype=np.float64), name=self.name if name is None else name)
+
+    def resized(self, width: int, height: int | None = None) -> "Camera":
+        """Same pose and field of view, another resolution."""
+        height = round(self.height * width / self.width) if height is None else height
+        return replace(self, width=int(width), height=int(height), focal=self.focal * width / self.width)
+
+    def rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-space ray origins and unit directions, (H*W, 3) float32 each, row-major pixels."""
+        d_cam = pixel_directions(self.width, self.height, self.focal)
+        d = d_cam @ self.c2w[:3, :3].T
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        o = np.broadcast_to(self.c2w[:3, 3], d.shape)
+        return o.astype(np.float32), d.astype(np.float32)
+
+
+def pixel_directions(width: int, height: int, focal: float) -> np.ndarray:
+    """Camera-frame (unnormalised, z = -1) ray directions through pixel centres, (H*W, 3)."""
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64), indexing="xy")
+    d = np.stack([(u + 0.5 - width / 2.0) / focal, -(v + 0.5 - height / 2.0) / focal, -np.ones_like(u)], -1)
+    return d.reshape(-1, 3)
+
+
+def rays_from_c2w(c2w: torch.Tensor, dirs_cam: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Differentiable ray generation: c2w (..., 3 or 4, 4), dirs_cam (..., 3) -> origins, unit dirs.
+
+    Broadcasts over leading dimensions, so per-ray poses (N, 4, 4) with per-ray camera-frame
+    directions (N, 3) work, which is what pose refinement needs.
+    """
+    R = c2w[..., :3, :3]
+    d = (R @ dirs_cam.unsqueeze(-1)).squeeze(-1)
+    d = d / d.norm(dim=-1, keepdim=True)
+    o = c2w[..., :3, 3].expand_as(d)
+    return o, d
+
+
+@dataclass
+class View:
+    """One image with its camera. `index` is its position on the source orbit (see protocol)."""
+
+    camera: Camera
+    rgb: np.ndarray  # (H, W, 3) float32 on white
+    alpha: np.ndarray | None = None  # (H, W) float32, None when unknown
+    index: int = -1
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.camera.name

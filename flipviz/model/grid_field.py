@@ -1,0 +1,173 @@
+"""A dense voxel-grid radiance field (DVGO / Plenoxels style), fast enough to train on a CPU.
+
+What a NeRF is: a function F(x, d) -> (sigma, c) from a 3-D point x and a viewing direction d to
+a density sigma and a colour c, turned into pixels by volume rendering (renderer.py, Eqn. 1).
+Vanilla NeRF represents F with a large MLP (nerf_field.py); here F is mostly a lookup table:
+
+    sigma(x) = softplus(V_density(x) + shift) / s     trilinear lookup in a (Z,Y,X) grid
+    f(x)     = V_feat(x)                              C-channel feature grid, same resolution
+    c, raw   = MLP(f(x), PE(d))                       tiny colour MLP (+ the beta head, Sec. IV-C)
+
+`shift` makes every voxel almost transparent at start (alpha_init); s is the voxel size of the
+first (coarsest) grid, so a raw value means the same opacity per voxel at every resolution.
+
+What makes it fast on a CPU (see ../shared/CPU_PERF_NOTES.md):
+- each channel is its own single-channel volume, batched along grid_sample's N dimension;
+- an occupancy mask (refreshed from the density every few steps, dilated, with a threshold
+  relative to the current maximum) drops samples in empty space before any lookup;
+- the renderer computes colour only where the sample weight exceeds 1e-4;
+- coarse-to-fine: the grids start at `grid_res[0]` voxels along the longest box side and are
+  trilinearly upsampled to the next resolution at fractions `upsample_at` of training. Early in
+  training the field is therefore smooth (a blurred scene), which is also what BARF's
+  coarse-to-fine positional-encoding schedule provides for pose refinement (pose_refine.py);
+- a total-variation regulariser on the density (and features) against few-view floaters.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+def posenc(x: Tensor, n_freqs: int) -> Tensor:
+    """NeRF positional encoding [x, sin(2^k x), cos(2^k x)]_{k<n_freqs}, (P,D) -> (P, D(1+2n))."""
+    if n_freqs == 0:
+        return x
+    freqs = 2.0 ** torch.arange(n_freqs, device=x.device, dtype=x.dtype)
+    xb = (x[..., None, :] * freqs[:, None]).flatten(-2)
+    return torch.cat([x, torch.sin(xb), torch.cos(xb)], -1)
+
+
+def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
+    """Voxels per axis (x, y, z): `res` along the longest side, proportionally fewer elsewhere."""
+    ext = np.asarray(bbox[1], dtype=np.float64) - np.asarray(bbox[0], dtype=np.float64)
+    return tuple(max(8, int(round(res * e / ext.max()))) for e in ext)  # type: ignore[return-value]
+
+
+class GridField(nn.Module):
+    two_stage = True
+
+    def __init__(self, cfg, bbox: np.ndarray, with_beta: bool, device: torch.device | str = "cpu"):
+        super().__init__()
+        self.cfg = cfg
+        self.with_beta = with_beta
+        self.register_buffer("lo", torch.as_tensor(bbox[0], dtype=torch.float32, device=device))
+        self.register_buffer("hi", torch.as_tensor(bbox[1], dtype=torch.float32, device=device))
+        ext = np.asarray(bbox[1], dtype=np.float64) - np.asarray(bbox[0], dtype=np.float64)
+        self.voxel0 = float(ext.max() / (cfg.grid_res[0] - 1))  # the scale s of the module docstring
+        # shift: softplus(shift) * (voxel0 / s) = -log(1 - alpha_init)  (alpha of one voxel)
+        self.shift = math.log(math.expm1(-math.log(1.0 - cfg.alpha_init)))
+        rx, ry, rz = axis_resolution(bbox, cfg.grid_res[0])
+        self.density_grid = nn.Parameter(torch.zeros(1, 1, rz, ry, rx, device=device))
+        self.feat_grid = nn.Parameter(torch.zeros(cfg.feat_dim, 1, rz, ry, rx, device=device))
+        nn.init.uniform_(self.feat_grid, -1e-4, 1e-4)
+        # Occupancy mask (True = evaluate), at the density's resolution; all True until refreshed.
+        self.register_buffer("occ", torch.ones(rz, ry, rx, dtype=torch.bool, device=device))
+        self.register_buffer("stage", torch.zeros((), dtype=torch.long, device=device))
+        in_dim = cfg.feat_dim + (3 + 6 * cfg.view_pe if cfg.view_dependent else 0)
+        out_dim = 4 if with_beta else 3
+        layers: list[nn.Module] = []
+        for _ in range(cfg.mlp_layers):
+            layers += [nn.Linear(in_dim, cfg.mlp_width), nn.ReLU(inplace=True)]
+            in_dim = cfg.mlp_width
+        layers.append(nn.Linear(in_dim, out_dim))
+        self.rgbnet = nn.Sequential(*layers).to(device)
+        if with_beta:  # start with a small per-sample variance: softplus(raw) = beta_init^2
+            with torch.no_grad():
+                self.rgbnet[-1].bias[3] = math.log(math.expm1(cfg.beta_init**2))
+
+    # --- lookups -------------------------------------------------------------------------
+    def _normalise(self, x: Tensor) -> Tensor:
+        return (x - self.lo) / (self.hi - self.lo) * 2.0 - 1.0  # grid_sample's [-1, 1]
+
+    def _sample(self, vol: Tensor, x: Tensor) -> Tensor:
+        """Trilinear lookup of C single-channel volumes (C,1,Z,Y,X) at points (P,3) -> (P,C)."""
+        g = self._normalise(x).view(1, 1, 1, -1, 3).expand(vol.shape[0], 1, 1, -1, 3)
+        return F.grid_sample(vol, g, mode="bilinear", padding_mode="border", align_corners=True).view(
+            vol.shape[0], -1
+        ).t()
+
+    def occupied(self, x: Tensor) -> Tensor:
+        Z, Y, X = self.occ.shape
+        size = torch.tensor([X - 1, Y - 1, Z - 1], device=x.device, dtype=x.dtype)
+        i = ((x - self.lo) / (self.hi - self.lo) * size).round().long()
+        i = torch.minimum(i.clamp_min(0), size.long())
+        return self.occ.view(-1)[(i[:, 2] * Y + i[:, 1]) * X + i[:, 0]]
+
+    def density(self, x: Tensor) -> Tensor:
+        return F.softplus(self._sample(self.density_grid, x)[:, 0] + self.shift) / self.voxel0
+
+    def color(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor | None]:
+        h = self._sample(self.feat_grid, x)
+        if self.cfg.view_dependent:
+            h = torch.cat([h, posenc(d, self.cfg.view_pe)], -1)
+        out = self.rgbnet(h)
+        return torch.sigmoid(out[:, :3]), (out[:, 3] if self.with_beta else None)
+
+    def forward(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
+        rgb, raw = self.color(x, d)
+        return self.density(x), rgb, raw
+
+    # --- schedule ------------------------------------------------------------------------
+    @torch.no_grad()
+    def refresh_occupancy(self, step_len: float) -> None:
+        """occ = dilate(alpha_voxel > min(occ_thresh, occ_rel * max alpha_voxel))."""
+        sigma = F.softplus(self.density_grid + self.shift) / self.voxel0
+        alpha = 1.0 - torch.exp(-sigma * step_len)
+        thr = min(self.cfg.occ_thresh, self.cfg.occ_rel * float(alpha.max()))
+        k = 2 * self.cfg.occ_dilate + 1
+        alpha = F.max_pool3d(alpha, k, stride=1, padding=self.cfg.occ_dilate)
+        self.occ = (alpha[0, 0] > thr).contiguous()
+
+    @torch.no_grad()
+    def upsample(self, res: int) -> None:
+        """Trilinear upsampling of the grids to `res` voxels along the longest side."""
+        bbox = torch.stack([self.lo, self.hi]).cpu().numpy()
+        rx, ry, rz = axis_resolution(bbox, res)
+        size = (rz, ry, rx)
+        interp = lambda v: F.interpolate(v, size=size, mode="trilinear", align_corners=True)  # noqa: E731
+        self.density_grid = nn.Parameter(interp(self.density_grid.data).contiguous())
+        self.feat_grid = nn.Parameter(interp(self.feat_grid.data).contiguous())
+        occ = interp(self.occ[None, None].float())[0, 0] > 0
+        self.occ = occ.contiguous()
+
+    def resize_to(self, shape_zyx: tuple[int, int, int]) -> None:
+        """Re-create the grids empty at a given (Z,Y,X) shape (used when loading a checkpoint)."""
+        dev = self.density_grid.device
+        self.density_grid = nn.Parameter(torch.zeros(1, 1, *shape_zyx, device=dev))
+        self.feat_grid = nn.Parameter(torch.zeros(self.cfg.feat_dim, 1, *shape_zyx, device=dev))
+        self.occ = torch.ones(*shape_zyx, dtype=torch.bool, device=dev)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[override]
+        key = prefix + "density_grid"
+        if key in state_dict and tuple(state_dict[key].shape) != tuple(self.density_grid.shape):
+            self.resize_to(tuple(state_dict[key].shape[2:]))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def regulariser(self) -> Tensor:
+        """Total variation (mean squared neighbour difference) of density and feature grids."""
+        def tv(v: Tensor) -> Tensor:
+            return (
+                (v[..., 1:, :, :] - v[..., :-1, :, :]).pow(2).mean()
+                + (v[..., :, 1:, :] - v[..., :, :-1, :]).pow(2).mean()
+                + (v[..., :, :, 1:] - v[..., :, :, :-1]).pow(2).mean()
+            )
+
+        r = self.density_grid.new_zeros(())
+        if self.cfg.tv_density > 0:
+            r = r + self.cfg.tv_density * tv(self.density_grid)
+        if self.cfg.tv_feat > 0:
+            r = r + self.cfg.tv_feat * tv(self.feat_grid)
+        return r
+
+    def param_groups(self) -> list[dict]:
+        c = self.cfg
+        return [
+            {"params": [self.density_grid], "lr": c.lr_density, "name": "density"},
+            {"params": [self.feat_grid], "lr": c.lr_feat, "name": "feat"},
+            {"params": list(self.rgbnet.parameters()), "lr": c.lr_mlp, "name": "mlp"},
+        ]

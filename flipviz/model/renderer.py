@@ -1,0 +1,174 @@
+"""Volume rendering (paper Eqn. 1), with the rendered variance beta_hat^2 of Sec. IV-C.
+
+A NeRF renders a pixel by marching its ray r(t) = o + t d through a density field sigma and a
+colour field c, and alpha-compositing N_s samples t_1 < ... < t_N (the quadrature of Eqn. 1):
+
+    alpha_j = 1 - exp(-sigma_j delta_j)                 (opacity of the segment around t_j)
+    T_j     = exp(-sum_{k<j} sigma_k delta_k)           (transmittance, T(t) of Eqn. 1)
+    w_j     = T_j alpha_j                               (the weight of sample j)
+    C_hat   = sum_j w_j c_j + (1 - sum_j w_j) * 1       (white background)
+
+Uncertainty (Sec. IV-C) gives each sample a variance beta_bar_j^2 = beta_min^2 + softplus(raw_j)
+and composites it along the ray. Two choices (`beta2_mode`):
+
+    "linear":   beta_hat^2 = sum_j w_j   beta_bar_j^2 + (1 - sum_j w_j)   beta_min^2
+    "variance": beta_hat^2 = sum_j w_j^2 beta_bar_j^2 + (1 - sum_j w_j^2) beta_min^2
+
+"linear" is what the official code does (the colour's compositing applied to the variance);
+"variance" is the variance of the weighted sum sum_j w_j c_j of independent Gaussians. In both,
+the weight the ray does not spend on samples goes to the background (and, for "variance", to the
+lost sum_j w_j (1 - w_j)), which has variance beta_min^2. Both therefore equal
+beta_min^2 + sum_j w_j^p softplus(raw_j) with p = 1 or 2, so beta_hat^2 >= beta_min^2 on every
+ray, including rays that miss the scene (beta_hat^2 = beta_min^2 exactly).
+
+Samples are placed inside the scene box only (rays that miss the box are never sampled), evenly
+over [max(near, t_in), min(far, t_out)], with stratified jitter while training. A field either
+evaluates everything at once (the NeRF MLP), or in two stages (the grid): density only where its
+occupancy mask is set, then colour only where the weight w_j exceeds `color_thresh`.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+
+class Field(Protocol):
+    """What the renderer needs from a radiance field (see grid_field.py and nerf_field.py)."""
+
+    two_stage: bool  # True: density() then color() on surviving samples; False: forward()
+
+    def occupied(self, x: Tensor) -> Tensor: ...  # (P,3) -> bool (P,)
+
+    def density(self, x: Tensor) -> Tensor: ...  # (P,3) -> sigma (P,)
+
+    def color(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor | None]: ...  # rgb (P,3), beta raw (P,)
+
+    def __call__(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor | None]: ...  # sigma, rgb, raw
+
+
+def ray_box(origins: Tensor, dirs: Tensor, bbox: Tensor) -> tuple[Tensor, Tensor]:
+    """Slab test: entry and exit distances (R,) of rays with the axis-aligned box bbox (2,3)."""
+    inv = 1.0 / torch.where(dirs.abs() < 1e-9, torch.full_like(dirs, 1e-9), dirs)
+    t0 = (bbox[0] - origins) * inv
+    t1 = (bbox[1] - origins) * inv
+    t_in = torch.minimum(t0, t1).amax(-1)
+    t_out = torch.maximum(t0, t1).amin(-1)
+    return t_in, t_out
+
+
+def render_rays(
+    field: Field,
+    origins: Tensor,
+    dirs: Tensor,
+    *,
+    bbox: Tensor,
+    near: float,
+    far: float,
+    n_samples: int,
+    training: bool,
+    with_beta: bool,
+    beta_min: float,
+    beta2_mode: str = "linear",
+    color_thresh: float = 1e-4,
+) -> dict[str, Tensor]:
+    """Render R rays (origins (R,3), unit dirs (R,3)); see the module docstring for the maths.
+
+    Returns rgb (R,3), depth (R,) (expected termination distance, background at `far`),
+    opacity (R,) = sum_j w_j, sigma_mean (R,) = (1/N_s) sum_j sigma(t_j), and, when with_beta,
+    beta2 (R,) = beta_hat^2.
+    """
+    if beta2_mode not in ("linear", "variance"):
+        raise ValueError(f"beta2_mode must be 'linear' or 'variance', got {beta2_mode!r}")
+    R, N, dev = origins.shape[0], n_samples, origins.device
+    dtype = origins.dtype
+    rgb = torch.ones(R, 3, device=dev, dtype=dtype)
+    depth = torch.full((R,), float(far), device=dev, dtype=dtype)
+    opacity = torch.zeros(R, device=dev, dtype=dtype)
+    sigma_mean = torch.zeros(R, device=dev, dtype=dtype)
+    beta2 = torch.full((R,), beta_min**2, device=dev, dtype=dtype)
+
+    # Rays that miss the box (or whose box segment lies outside [near, far]) stay background.
+    with torch.no_grad():
+        t_in, t_out = ray_box(origins, dirs, bbox)
+        t_in = t_in.clamp_min(near)
+        t_out = t_out.clamp_max(far)
+        hit = torch.nonzero(t_out > t_in + 1e-6).squeeze(-1)
+    out = {"rgb": rgb, "depth": depth, "opacity": opacity, "sigma_mean": sigma_mean}
+    if with_beta:
+        out["beta2"] = beta2
+    if hit.numel() == 0:
+        if training:  # keep the graph connected so backward() works on an all-miss batch
+            zero = 0.0 * origins.sum() + 0.0 * dirs.sum()
+            out = {k: v + zero for k, v in out.items()}
+        return out
+
+    o, d = origins[hit], dirs[hit]
+    t0, t1 = t_in[hit], t_out[hit]
+    Rh = o.shape[0]
+    with torch.no_grad():
+        u = (torch.arange(N, device=dev, dtype=dtype) + 0.5) / N  # bin centres
+        if training:  # stratified sampling: one uniform jitter per bin
+            u = u + (torch.rand(Rh, N, device=dev, dtype=dtype) - 0.5) / N
+        else:
+            u = u.expand(Rh, N)
+        span = (t1 - t0)[:, None]
+        t = t0[:, None] + span * u  # (Rh, N)
+        delta = (span / N).expand(Rh, N)  # segment lengths (equal bins)
+    x = o[:, None, :] + t[..., None] * d[:, None, :]  # (Rh, N, 3), differentiable in o, d
+    x_flat = x.reshape(-1, 3)
+    ray_id = torch.arange(Rh, device=dev)[:, None].expand(Rh, N).reshape(-1)
+
+    if field.two_stage:
+        # Stage 1: density where the occupancy mask says occupied (sigma = 0 elsewhere).
+        with torch.no_grad():
+            occ = torch.nonzero(field.occupied(x_flat)).squeeze(-1)
+        sigma = torch.zeros(Rh * N, device=dev, dtype=dtype)
+        if occ.numel() > 0:
+            sigma = sigma.index_put((occ,), field.density(x_flat[occ]))
+        sigma = sigma.view(Rh, N)
+    else:
+        d_flat = d[:, None, :].expand(Rh, N, 3).reshape(-1, 3)
+        sigma_f, rgb_f, raw_f = field(x_flat, d_flat)
+        sigma = sigma_f.view(Rh, N)
+
+    # Eqn. 1, discretised: alpha_j, T_j = exp(-sum_{k<j} sigma_k delta_k), w_j = T_j alpha_j.
+    tau = sigma * delta
+    alpha = 1.0 - torch.exp(-tau)
+    T = torch.exp(-torch.cat([torch.zeros_like(tau[:, :1]), torch.cumsum(tau, -1)[:, :-1]], -1))
+    w = (T * alpha).reshape(-1)
+
+    if field.two_stage:
+        # Stage 2: colour (and beta) only where the sample contributes.
+        with torch.no_grad():
+            keep = torch.nonzero(w > color_thresh).squeeze(-1)
+        rid = ray_id[keep]
+        wk = w[keep]
+        if keep.numel() > 0:
+            c, raw = field.color(x_flat[keep], d[rid])
+        else:
+            c = torch.zeros(0, 3, device=dev, dtype=dtype)
+            raw = torch.zeros(0, device=dev, dtype=dtype) if with_beta else None
+    else:
+        rid, wk, c, raw = ray_id, w, rgb_f, raw_f
+
+    acc = torch.zeros(Rh, device=dev, dtype=dtype).index_add(0, ray_id, w)
+    col = torch.zeros(Rh, 3, device=dev, dtype=dtype).index_add(0, rid, wk[:, None] * c)
+    dep = torch.zeros(Rh, device=dev, dtype=dtype).index_add(0, ray_id, w * t.reshape(-1))
+    h_rgb = col + (1.0 - acc)[:, None]  # white background
+    h_depth = dep + (1.0 - acc) * far
+    out["rgb"] = rgb.index_put((hit,), h_rgb)
+    out["depth"] = depth.index_put((hit,), h_depth)
+    out["opacity"] = opacity.index_put((hit,), acc)
+    out["sigma_mean"] = sigma_mean.index_put((hit,), sigma.mean(-1))  # (1/N_s) sum_j sigma(t_j)
+    if with_beta:
+        if raw is None:
+            raise ValueError("with_beta=True but the field has no variance head")
+        wp = wk if beta2_mode == "linear" else wk * wk
+        # beta_bar^2 = beta_min^2 + softplus(raw) (Sec. IV-C); composited as in the docstring.
+        extra = torch.zeros(Rh, device=dev, dtype=dtype).index_add(0, rid, wp * F.softplus(raw))
+        out["beta2"] = beta2.index_put((hit,), beta_min**2 + extra)
+    return out

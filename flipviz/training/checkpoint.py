@@ -1,0 +1,57 @@
+"""Checkpoints: field + poses + config + step + optimiser states, written atomically.
+
+A checkpoint is only ever written from a finite training state, and always as tmp + rename, so
+the file on disk is the last good state even if the process dies or the loss turns NaN.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+CHECKPOINT_NAME = "checkpoint.pt"
+
+
+def checkpoint_path(path: Path | str) -> Path:
+    """A checkpoint file, or a run folder holding checkpoint.pt -> the checkpoint file."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / CHECKPOINT_NAME
+    if not p.is_file():
+        raise FileNotFoundError(f"no checkpoint at {p}")
+    return p
+
+
+def save_checkpoint(path: Path, state: dict) -> Path:
+    """Write `state` (plain data + tensors) to `path` via tmp + rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") -> dict:
+    p = checkpoint_path(path)
+    state = torch.load(p, map_location=map_location, weights_only=False)
+    if not isinstance(state, dict) or "step" not in state or "model" not in state:
+        raise ValueError(f"{p} is not a flipviz checkpoint")
+    return state
+
+
+def state_is_finite(state_dict: dict) -> bool:
+    """True when every floating tensor in a (possibly nested) state dict is finite."""
+
+    def ok(v) -> bool:
+        if isinstance(v, torch.Tensor):
+            return not v.is_floating_point() or bool(torch.isfinite(v).all())
+        if isinstance(v, dict):
+            return all(ok(x) for x in v.values())
+        if isinstance(v, (list, tuple)):
+            return all(ok(x) for x in v)
+        return True
+
+    return ok(state_dict)

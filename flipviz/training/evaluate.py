@@ -1,0 +1,181 @@
+"""Scores of renders against ground truth: PSNR, SSIM and LPIPS (AlexNet, when its weights exist).
+
+LPIPS (Zhang et al. 2018, v0.1, AlexNet) is implemented here because torchvision is not a
+dependency: AlexNet's `features` exactly as torchvision builds them, loaded from torchvision's
+checkpoint in the torch hub cache, plus the LPIPS linear heads (`alex.pth`). When either file is
+missing the metric is the string "unavailable" with a one-line reason: never a made-up number.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+ALEXNET_FILE = "alexnet-owt-7be5be79.pth"  # torchvision's AlexNet ImageNet weights
+LPIPS_FILE = "alex.pth"  # LPIPS v0.1 linear layers for AlexNet
+UNAVAILABLE = "unavailable"
+
+
+def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
+    """PSNR = -10 log10(MSE), images in [0, 1]."""
+    mse = float(np.mean((np.clip(pred, 0, 1).astype(np.float64) - gt.astype(np.float64)) ** 2))
+    return float(-10.0 * np.log10(max(mse, 1e-12)))
+
+
+def ssim(pred: np.ndarray, gt: np.ndarray) -> float:
+    from skimage.metrics import structural_similarity
+
+    return float(structural_similarity(np.clip(pred, 0, 1), gt, channel_axis=-1, data_range=1.0))
+
+
+# ---------------------------------------------------------------------------------------- LPIPS
+
+
+def _lpips_weight_paths() -> tuple[Path | None, Path | None, str]:
+    """Locate (alexnet, lpips-linear) weight files; the reason string says what is missing."""
+    ckpt = Path(torch.hub.get_dir()) / "checkpoints"
+    alex = ckpt / ALEXNET_FILE
+    lin_candidates = [ckpt / LPIPS_FILE]
+    try:  # the `lpips` package ships the linear weights, if it happens to be installed
+        import lpips  # type: ignore
+
+        lin_candidates.append(Path(lpips.__file__).parent / "weights" / "v0.1" / LPIPS_FILE)
+    except Exception:
+        pass
+    lin = next((p for p in lin_candidates if p.is_file()), None)
+    missing = []
+    if not alex.is_file():
+        missing.append(str(alex))
+    if lin is None:
+        missing.append(" or ".join(str(p) for p in lin_candidates))
+    reason = "" if not missing else "LPIPS weights not found: " + "; ".join(missing)
+    return (alex if alex.is_file() else None), lin, reason
+
+
+class LPIPSAlex(nn.Module):
+    """LPIPS v0.1 with AlexNet: sum over conv1..conv5 of spatially averaged w_l . (f0 - f1)^2."""
+
+    CHANNELS = (64, 192, 384, 256, 256)
+
+    def __init__(self) -> None:
+        super().__init__()
+        # torchvision.models.alexnet().features, index for index (so its state_dict loads as is)
+        self.features = nn.Sequential(
+            nn.Conv2d(3, 64, 11, 4, 2), nn.ReLU(inplace=False), nn.MaxPool2d(3, 2),
+            nn.Conv2d(64, 192, 5, padding=2), nn.ReLU(inplace=False), nn.MaxPool2d(3, 2),
+            nn.Conv2d(192, 384, 3, padding=1), nn.ReLU(inplace=False),
+            nn.Conv2d(384, 256, 3, padding=1), nn.ReLU(inplace=False),
+            nn.Conv2d(256, 256, 3, padding=1), nn.ReLU(inplace=False), nn.MaxPool2d(3, 2),
+        )  # fmt: skip
+        self.slices = ((0, 2), (2, 5), (5, 8), (8, 10), (10, 12))  # outputs relu1..relu5
+        self.lins = nn.ModuleList(nn.Conv2d(c, 1, 1, bias=False) for c in self.CHANNELS)
+        self.register_buffer("shift", torch.tensor([-0.030, -0.088, -0.188]).view(1, 3, 1, 1))
+        self.register_buffer("scale", torch.tensor([0.458, 0.448, 0.450]).view(1, 3, 1, 1))
+
+    def load(self, alex_path: Path, lin_path: Path) -> "LPIPSAlex":
+        sd = torch.load(alex_path, map_location="cpu", weights_only=True)
+        self.features.load_state_dict({k[len("features."):]: v for k, v in sd.items() if k.startswith("features.")})
+        lin = torch.load(lin_path, map_location="cpu", weights_only=True)
+        for i, conv in enumerate(self.lins):  # LPIPS keys: lin{i}.model.1.weight (after a Dropout)
+            conv.weight.data.copy_(lin[f"lin{i}.model.1.weight"])
+        return self.eval()
+
+    def _feats(self, x: torch.Tensor) -> list[torch.Tensor]:
+        x = (x - self.shift) / self.scale
+        out = []
+        for a, b in self.slices:
+            for layer in self.features[a:b]:
+                x = layer(x)
+            out.append(x / (x.pow(2).sum(1, keepdim=True).sqrt() + 1e-10))  # unit-normalise channels
+        return out
+
+    @torch.no_grad()
+    def forward(self, img0: torch.Tensor, img1: torch.Tensor) -> torch.Tensor:
+        """img0, img1: (B, 3, H, W) in [-1, 1] -> (B,) distances."""
+        f0, f1 = self._feats(img0), self._feats(img1)
+        return sum(lin((a - b) ** 2).mean(dim=(1, 2, 3)) for lin, a, b in zip(self.lins, f0, f1))
+
+
+_LPIPS_CACHE: dict[tuple[str, str], LPIPSAlex] = {}
+
+
+def load_lpips() -> tuple[LPIPSAlex | None, str]:
+    """(network, "") when the weights are present locally, else (None, one-line reason)."""
+    alex, lin, reason = _lpips_weight_paths()
+    if alex is None or lin is None:
+        return None, reason
+    key = (str(alex), str(lin))
+    if key not in _LPIPS_CACHE:
+        try:
+            _LPIPS_CACHE[key] = LPIPSAlex().load(alex, lin)
+        except Exception as e:  # a corrupt or foreign file: say so, don't guess
+            return None, f"LPIPS weights could not be loaded: {type(e).__name__}: {e}".splitlines()[0]
+    return _LPIPS_CACHE[key], ""
+
+
+def lpips_distance(net: LPIPSAlex, pred: np.ndarray, gt: np.ndarray) -> float:
+    to_t = lambda im: torch.from_numpy(np.clip(im, 0, 1).astype(np.float32)).permute(2, 0, 1)[None] * 2 - 1  # noqa: E731
+    return float(net(to_t(pred), to_t(gt))[0])
+
+
+# ------------------------------------------------------------------------------------ scoring
+
+
+def score_views(preds: list[np.ndarray], gts: list[np.ndarray], names: list[str]) -> dict:
+    """Mean and per-view PSNR / SSIM / LPIPS. LPIPS is "unavailable" (+ lpips_reason) without weights."""
+    net, reason = load_lpips()
+    per_view = []
+    for name, p, g in zip(names, preds, gts):
+        row = {"name": name, "psnr": psnr(p, g), "ssim": ssim(p, g)}
+        row["lpips"] = lpips_distance(net, p, g) if net is not None else UNAVAILABLE
+        per_view.append(row)
+    out = {
+        "psnr": float(np.mean([r["psnr"] for r in per_view])) if per_view else float("nan"),
+        "ssim": float(np.mean([r["ssim"] for r in per_view])) if per_view else float("nan"),
+        "lpips": float(np.mean([r["lpips"] for r in per_view])) if net is not None and per_view else UNAVAILABLE,
+        "per_view": per_view,
+    }
+    if net is None:
+        out["lpips_reason"] = reason
+    return out
+
+
+def save_png(path: Path, img: np.ndarray) -> None:
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    u8 = (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+    cv2.imwrite(str(path), cv2.cvtColor(u8, cv2.COLOR_RGB2BGR))
+
+
+def write_json(path: Path, data: dict) -> None:
+    """Atomic JSON write (tmp + rename)."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=_json_default))
+    tmp.replace(path)
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def export_transforms(path: Path, cameras: list, images: list[np.ndarray], image_dir: str = "mirrored") -> None:
+    """Blender-format transforms.json of `cameras` (refined mirrored poses) + their PNG images."""
+    root = path.parent
+    frames = []
+    for i, (cam, img) in enumerate(zip(cameras, images)):
+        rel = f"./{image_dir}/{cam.name or f'mirror_{i:02d}'}"
+        save_png(root / (rel + ".png"), img)
+        frames.append({"file_path": rel, "transform_matrix": np.asarray(cam.c2w).tolist()})
+    data = {"camera_angle_x": float(cameras[0].fov_x) if cameras else 0.0, "frames": frames}
+    write_json(path, data)

@@ -1,0 +1,363 @@
+"""Stream a training run to Rerun: a `.rrd` recording, and optionally a local web viewer.
+
+`RerunObserver` turns the trainer's events (`flipviz.training.events`) into Rerun entities on one
+`step` timeline (layout in `flipviz.viz.rerun_blueprint`). It logs through its own
+`rr.RecordingStream` (never the global one) and sets the time on the calling thread before every
+log, so it is safe to call from the training thread. The file is written incrementally and flushed
+every few seconds, so a killed run still leaves a readable recording; `on_end` finalises it.
+"""
+
+from __future__ import annotations
+
+import atexit
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import quote
+
+import numpy as np
+import rerun as rr
+
+from flipviz.data.cameras import Camera
+from flipviz.data.dataset import Plane
+from flipviz.training.config import TrainConfig
+from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent
+from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
+
+APP_ID = "flipviz"
+
+COLORS: dict[str, tuple[int, int, int]] = {
+    "input": (30, 120, 255),  # blue
+    "test": (40, 170, 70),  # green
+    "mirror_init": (255, 150, 0),  # orange
+    "mirror": (230, 40, 40),  # red: the refined mirrored cameras
+    "mirror_true": (150, 60, 200),  # purple
+    "upper": (0, 180, 200),  # teal
+}
+
+
+@dataclass
+class RerunOptions:
+    """How a run is recorded."""
+
+    path: Path | None  # .rrd file (None: no file, only the viewer)
+    serve: bool = False  # also serve a local web viewer (127.0.0.1) and print its URL
+    web_port: int = 9090  # preferred ports (a free one is picked when taken)
+    grpc_port: int = 9876
+    jpeg_quality: int = 85  # for the RGB images
+    max_map_size: int = 128  # scalar maps (beta^2, depth, opacity, error) are strided down to this
+    step_stride: int = 1  # log every n-th StepEvent (on top of cfg.log_every)
+    flush_every_s: float = 2.0
+    beta2_range: tuple[float, float] | None = None  # None: fixed from the first ImagesEvent
+    error_max: float = 0.5  # colour range of the |render - GT| map
+
+
+def _u8(img: np.ndarray) -> np.ndarray:
+    return (np.clip(np.asarray(img, dtype=np.float32), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def _nice_ceil(x: float) -> float:
+    """Smallest 1, 2 or 5 times a power of ten that is >= x."""
+    x = max(float(x), 1e-6)
+    e = 10.0 ** np.floor(np.log10(x))
+    return float(next(m * e for m in (1.0, 2.0, 5.0, 10.0) if m * e >= x * (1 - 1e-9)))
+
+
+def _free_port(preferred: int) -> int:
+    for port in (preferred, 0):
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(s.getsockname()[1])
+    raise RuntimeError("no free TCP port on 127.0.0.1")
+
+
+def _wait_listening(port: int, timeout_s: float) -> bool:
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return True
+        time.sleep(0.1)
+    return False
+
+
+def _plane_quad(plane: Plane, half: float) -> np.ndarray:
+    """The 4 corners of a square of half-size `half` in `plane`, centred on its point."""
+    n = plane.normal
+    a = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    p = plane.point
+    return np.stack([p + half * (sa * a + sb * b) for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+
+
+class RerunObserver(Observer):
+    """Logs a run's setup, steps, periodic renders and end to a Rerun recording stream."""
+
+    def __init__(self, opts: RerunOptions, blueprint_names: tuple[list[str], list[str]] | None = None) -> None:
+        self.opts = opts
+        self.rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
+        self.viewer_url: str | None = None
+        self._server: subprocess.Popen | None = None
+        self._lock = threading.Lock()
+        self._last_flush = time.monotonic()
+        self._n_step_events = 0
+        self._mirror_names: list[str] = []
+        self._prev_centers: np.ndarray | None = None
+        self._beta2_range = opts.beta2_range
+        self._depth_range = (0.0, 10.0)
+        self._logged_gt: set[str] = set()
+        self._sinks_ready = False
+        self._closed = False
+        self._frustum_scale = 0.3
+
+    # ------------------------------------------------------------------ sinks
+    def _attach_sinks(self, blueprint: rr.blueprint.Blueprint) -> None:
+        """File sink (+ gRPC to a local viewer); called once the camera names are known."""
+        sinks: list = []
+        if self.opts.path is not None:
+            self.opts.path.parent.mkdir(parents=True, exist_ok=True)
+            sinks.append(rr.FileSink(str(self.opts.path)))
+        if self.opts.serve:
+            sinks.append(rr.GrpcSink(self._start_viewer()))
+        if sinks:
+            self.rec.set_sinks(*sinks, default_blueprint=blueprint)
+        self._sinks_ready = True
+
+    def _start_viewer(self) -> str:
+        """Start `rerun --serve-web` bound to 127.0.0.1 (web viewer + gRPC proxy); return the gRPC URL."""
+        grpc_port = _free_port(self.opts.grpc_port)
+        web_port = _free_port(self.opts.web_port)
+        cmd = [sys.executable, "-m", "rerun", "--serve-web", "--bind", "127.0.0.1"]
+        cmd += ["--port", str(grpc_port), "--web-viewer-port", str(web_port)]
+        self._server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        atexit.register(self.close)
+        if not (_wait_listening(grpc_port, 20.0) and _wait_listening(web_port, 20.0)):
+            self.close()
+            raise RuntimeError("the Rerun web viewer did not start (is `rerun` installed in this environment?)")
+        grpc_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+        self.viewer_url = f"http://127.0.0.1:{web_port}/?url={quote(grpc_url, safe='')}"
+        print(f"Rerun web viewer: {self.viewer_url}", flush=True)
+        return grpc_url
+
+    def _maybe_flush(self, force: bool = False) -> None:
+        if force or time.monotonic() - self._last_flush >= self.opts.flush_every_s:
+            try:
+                self.rec.flush(timeout_sec=5.0)
+            except Exception:  # a slow disk or viewer must not stop training
+                pass
+            self._last_flush = time.monotonic()
+
+    def _shrink(self, a: np.ndarray) -> np.ndarray:
+        """Integer-stride a map down to at most max_map_size pixels a side (float16 storage)."""
+        s = max(1, int(np.ceil(max(a.shape[:2]) / self.opts.max_map_size)))
+        return np.asarray(a[::s, ::s], dtype=np.float16)
+
+    def _map(self, a: np.ndarray, colormap: str, lo: float, hi: float) -> rr.DepthImage:
+        # Raw values stay readable back (float16); the colour range is fixed for the whole run.
+        return rr.DepthImage(self._shrink(a), meter=1.0, colormap=colormap, depth_range=[lo, hi])
+
+    def _jpeg(self, img: np.ndarray) -> rr.EncodedImage | rr.Image:
+        return rr.Image(_u8(img)).compress(jpeg_quality=self.opts.jpeg_quality)
+
+    # ------------------------------------------------------------------ events
+    def on_setup(self, event: SetupEvent) -> None:
+        with self._lock:
+            tests = [c.camera.name for c in event.cameras if c.kind == "test"]
+            # Refined mirrored cameras exist only when the method trains on mirrors (plane given).
+            mirrors = [c.camera.name for c in event.cameras if c.kind == "mirror_init"] if event.plane else []
+            if not self._sinks_ready:
+                self._attach_sinks(make_blueprint(tests, mirrors))
+            self._mirror_names = [entity_name(n) for n in mirrors]
+            self._log_setup(event)
+            self._maybe_flush(force=True)
+
+    def _log_setup(self, e: SetupEvent) -> None:
+        rec = self.rec
+        r = float(e.sphere_radius)
+        c = np.asarray(e.sphere_center, dtype=np.float64)
+        half_diag = 0.5 * float(np.linalg.norm(e.bbox[1] - e.bbox[0]))
+        near = float(e.settings.get("near", max(1e-3, r - half_diag)))
+        far = float(e.settings.get("far", r + half_diag))
+        self._depth_range = (near, far)
+
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log(
+            "world/sphere",
+            rr.Ellipsoids3D(
+                centers=[c], half_sizes=[[r, r, r]], colors=[(120, 120, 120)], fill_mode="majorwireframe",
+                line_radii=0.004, labels=["least-squares sphere"],
+            ),
+            static=True,
+        )
+        rec.log("world/sphere/center", rr.Points3D([c], radii=0.03, colors=[(120, 120, 120)]), static=True)
+        rec.log("world/bbox", rr.Boxes3D(mins=[e.bbox[0]], sizes=[e.bbox[1] - e.bbox[0]], colors=[(90, 90, 90)]),
+                static=True)
+        for path, plane, color in (("world/mirror_plane", e.plane, (255, 150, 0)),
+                                   ("world/true_plane", e.true_plane, (150, 60, 200))):
+            if plane is None:
+                continue
+            quad = _plane_quad(plane, 0.8 * r)
+            rec.log(
+                path,
+                rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]],
+                          vertex_colors=[(*color, 70)] * 4),
+                static=True,
+            )
+            rec.log(f"{path}/normal", rr.Arrows3D(origins=[plane.point], vectors=[0.5 * r * plane.normal],
+                                                  colors=[color], radii=0.01), static=True)
+        self._frustum_scale = 0.12 * r
+        for info in e.cameras:
+            self._log_camera(f"world/cameras/{info.kind}/{entity_name(info.camera.name)}", info.camera,
+                             COLORS[info.kind], info.image)
+            if info.kind == "test" and info.image is not None:
+                self._log_gt(f"views/test/{entity_name(info.camera.name)}/gt", info.image)
+            if info.kind == "mirror_init" and info.image is not None:
+                self._log_gt(f"views/mirror/{entity_name(info.camera.name)}/flipped", info.image)
+        # The refined mirrored cameras start at the initial mirrored poses (step 0).
+        inits = [i for i in e.cameras if i.kind == "mirror_init"] if self._mirror_names else []
+        rec.set_time(STEP, sequence=0)
+        for info in inits:
+            path = f"world/cameras/mirror/{entity_name(info.camera.name)}"
+            self._log_camera(path, info.camera, COLORS["mirror"], info.image, pose_static=False)
+        self._prev_centers = np.stack([i.camera.center for i in inits]) if inits else None
+        if inits:
+            for q in ("rot_change_deg", "trans_change", "rot_err_deg", "trans_err"):
+                rec.log(f"curves/mirror/{q}", rr.SeriesLines(names=self._mirror_names), static=True)
+        settings = "\n".join(f"- **{k}**: {v}" for k, v in e.settings.items())
+        rec.log(
+            "run",
+            rr.TextDocument(
+                f"# {e.run_name}\n\nscene **{e.scene}**, method **{e.method}**, configuration **{e.config}**, "
+                f"{e.total_steps} steps\n\n{settings}",
+                media_type="text/markdown",
+            ),
+            static=True,
+        )
+
+    def _log_camera(self, path: str, cam: Camera, color: tuple[int, int, int], image: np.ndarray | None,
+                    pose_static: bool = True) -> None:
+        rec = self.rec
+        rec.log(path, rr.Transform3D(translation=cam.c2w[:3, 3], mat3x3=cam.c2w[:3, :3]), static=pose_static)
+        rec.log(
+            path,
+            rr.Pinhole(
+                image_from_camera=cam.K, resolution=[cam.width, cam.height],
+                camera_xyz=rr.ViewCoordinates.RUB,  # flipviz cameras are OpenGL: x right, y up, looking along -z
+                image_plane_distance=self._frustum_scale, color=color, line_width=0.003,
+            ),
+            static=True,
+        )
+        if image is not None:
+            rec.log(path, self._jpeg(image), static=True)
+
+    def _log_gt(self, path: str, image: np.ndarray) -> None:
+        if path not in self._logged_gt:
+            self.rec.log(path, self._jpeg(image), static=True)
+            self._logged_gt.add(path)
+
+    def on_step(self, event: StepEvent) -> None:
+        with self._lock:
+            self._n_step_events += 1
+            if (self._n_step_events - 1) % self.opts.step_stride and event.step != event.total_steps:
+                return
+            rec = self.rec
+            rec.set_time(STEP, sequence=event.step)
+            for k, v in event.scalars.items():
+                group = "lr" if k.startswith("lr") else "train"
+                rec.log(f"curves/{group}/{entity_name(k)}", rr.Scalars(float(v)))
+            if event.mirror_c2w is not None and self._mirror_names:
+                self._log_mirrors(event)
+            self._maybe_flush()
+
+    def _log_mirrors(self, e: StepEvent) -> None:
+        rec = self.rec
+        c2w = np.asarray(e.mirror_c2w, dtype=np.float64)
+        for name, T in zip(self._mirror_names, c2w):
+            rec.log(f"world/cameras/mirror/{name}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        centers = c2w[:, :3, 3]
+        if self._prev_centers is not None and len(self._prev_centers) == len(centers):
+            # One new segment per camera per step: the file grows linearly with the steps.
+            strips = np.stack([self._prev_centers, centers], axis=1)
+            rec.log("world/trajectories", rr.LineStrips3D(strips, colors=[COLORS["mirror"]], radii=0.004))
+        self._prev_centers = centers
+        for q in ("rot_change_deg", "trans_change", "rot_err_deg", "trans_err"):
+            v = getattr(e, f"mirror_{q}")
+            if v is not None:
+                rec.log(f"curves/mirror/{q}", rr.Scalars(np.asarray(v, dtype=np.float64)))
+
+    def on_images(self, event: ImagesEvent) -> None:
+        with self._lock:
+            rec = self.rec
+            rec.set_time(STEP, sequence=event.step)
+            for k, v in event.scalars.items():
+                rec.log(f"curves/test/{entity_name(k)}", rr.Scalars(float(v)))
+            if self._beta2_range is None:
+                maps = [v.beta2 for v in event.mirror_views if v.beta2 is not None]
+                if maps:
+                    hi = max(float(np.percentile(m, 99)) for m in maps)
+                    self._beta2_range = (0.0, _nice_ceil(2.0 * hi))
+            for v in event.test_views:
+                self._log_view(f"views/test/{entity_name(v.name)}", v, gt_name="gt")
+            for v in event.mirror_views:
+                self._log_view(f"views/mirror/{entity_name(v.name)}", v, gt_name="flipped")
+            self._maybe_flush(force=True)
+
+    def _log_view(self, base: str, v: RenderedView, gt_name: str) -> None:
+        rec = self.rec
+        rec.log(f"{base}/render", self._jpeg(v.rgb))
+        near, far = self._depth_range
+        rec.log(f"{base}/depth", self._map(v.depth, "turbo", near, far))
+        rec.log(f"{base}/opacity", self._map(v.opacity, "grayscale", 0.0, 1.0))
+        if v.gt is not None:
+            self._log_gt(f"{base}/{gt_name}", v.gt)
+            err = np.abs(np.asarray(v.rgb, np.float32) - np.asarray(v.gt, np.float32)).mean(-1)
+            rec.log(f"{base}/error", self._map(err, "inferno", 0.0, self.opts.error_max))
+        if v.beta2 is not None and self._beta2_range is not None:
+            rec.log(f"{base}/beta2", self._map(v.beta2, "viridis", *self._beta2_range))
+
+    def on_end(self, event: EndEvent) -> None:
+        with self._lock:
+            rec = self.rec
+            rec.set_time(STEP, sequence=event.step)
+            rec.log("log", rr.TextLog(f"run {event.status} at step {event.step}. {event.message}".strip(),
+                                      level="ERROR" if event.status in ("nan", "error") else "INFO"))
+            for k, v in event.metrics.items():
+                if isinstance(v, (int, float)) and not isinstance(v, bool):
+                    rec.log(f"curves/final/{entity_name(k)}", rr.Scalars(float(v)))
+            self._maybe_flush(force=True)
+            # Finalise the file (footer). A served viewer keeps what it received until close().
+            rec.disconnect()
+            if self.viewer_url:
+                print(f"Rerun web viewer (run {event.status}): {self.viewer_url}", flush=True)
+
+    def close(self) -> None:
+        """Finalise the recording and stop the local web viewer, if one was started."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.rec.flush(timeout_sec=5.0)
+            self.rec.disconnect()
+        except Exception:
+            pass
+        if self._server is not None and self._server.poll() is None:
+            self._server.terminate()
+            try:
+                self._server.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self._server.kill()
+
+
+def make_rerun_observer(cfg: TrainConfig, run_dir: Path, **overrides) -> RerunObserver:
+    """The observer the CLI and the app attach (cfg.rrd, default <run_dir>/recording.rrd; cfg.rerun_serve)."""
+    path = Path(cfg.rrd) if cfg.rrd is not None else Path(run_dir) / "recording.rrd"
+    return RerunObserver(RerunOptions(path=path, serve=cfg.rerun_serve, **overrides))

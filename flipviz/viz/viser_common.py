@@ -1,0 +1,141 @@
+"""Small helpers shared by the viser app: the one camera-convention conversion, images, colormaps.
+
+flipviz cameras are OpenGL (look along -z, +y up; `flipviz.data.cameras`). viser's frustums,
+gizmos and viewer cameras are OpenCV (look along +z, +y down). The two differ by a flip of the
+camera's y and z axes: c2w_cv = c2w_gl @ diag(1, -1, -1, 1) (and back, the matrix is its own
+inverse). `to_viser_pose` / `camera_from_viser` are the only places that convert.
+"""
+
+from __future__ import annotations
+
+import math
+
+import matplotlib
+import numpy as np
+import viser.transforms as vtf
+
+from flipviz.data.cameras import Camera
+from flipviz.data.dataset import Plane
+
+GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def to_viser_pose(c2w_gl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """flipviz (OpenGL) camera-to-world -> viser (wxyz, position) of the OpenCV camera frame."""
+    T = np.asarray(c2w_gl, dtype=np.float64) @ GL_TO_CV
+    return vtf.SO3.from_matrix(T[:3, :3]).wxyz, T[:3, 3].copy()
+
+
+def c2w_from_viser(wxyz, position) -> np.ndarray:
+    """viser (wxyz, position) of an OpenCV camera frame -> flipviz (OpenGL) camera-to-world."""
+    T = np.eye(4)
+    T[:3, :3] = vtf.SO3(np.asarray(wxyz, dtype=np.float64)).as_matrix()
+    T[:3, 3] = np.asarray(position, dtype=np.float64)
+    return T @ GL_TO_CV
+
+
+def camera_from_viser(wxyz, position, fov_y: float, width: int, height: int, name: str = "") -> Camera:
+    """A flipviz Camera from a viser pose and a vertical field of view (radians)."""
+    focal = 0.5 * height / math.tan(0.5 * fov_y)
+    return Camera(c2w_from_viser(wxyz, position), int(width), int(height), float(focal), name)
+
+
+def plane_wxyz(normal: np.ndarray) -> np.ndarray:
+    """Rotation whose local +z axis is `normal` (the plane gizmo's frame)."""
+    z = np.asarray(normal, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return vtf.SO3.from_matrix(np.stack([x, y, z], 1)).wxyz
+
+
+def plane_from_pose(wxyz, position) -> Plane:
+    """The plane through the gizmo's position whose normal is the gizmo's local +z axis."""
+    R = vtf.SO3(np.asarray(wxyz, dtype=np.float64)).as_matrix()
+    return Plane(np.asarray(position, dtype=np.float64), R[:, 2])
+
+
+def plane_to_arg(plane: Plane) -> str:
+    """The `--mirror-plane` string 'px,py,pz;nx,ny,nz' of a plane."""
+    p, n = plane.point, plane.normal
+    return ",".join(f"{v:.5g}" for v in p) + ";" + ",".join(f"{v:.5g}" for v in n)
+
+
+def to_uint8(img: np.ndarray) -> np.ndarray:
+    """float image in [0, 1] (H, W[, 3]) -> uint8 RGB (H, W, 3)."""
+    img = np.asarray(img)
+    if img.dtype != np.uint8:
+        img = (np.clip(np.nan_to_num(img, nan=0.0), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=-1)
+    return np.ascontiguousarray(img[..., :3])
+
+
+def thumbnail(img: np.ndarray, max_side: int = 64) -> np.ndarray:
+    """uint8 thumbnail by integer striding (cheap; thumbnails are only for frustums)."""
+    img = to_uint8(img)
+    step = max(1, int(math.ceil(max(img.shape[:2]) / max_side)))
+    return np.ascontiguousarray(img[::step, ::step])
+
+
+def upscale(img: np.ndarray, min_side: int = 128) -> np.ndarray:
+    """Nearest-neighbour upscaling of a small uint8 image, so the browser shows crisp pixels."""
+    k = max(1, int(math.ceil(min_side / max(1, min(img.shape[:2])))))
+    return np.ascontiguousarray(img.repeat(k, 0).repeat(k, 1)) if k > 1 else img
+
+
+def colormap(x: np.ndarray, name: str = "turbo", lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """Scalar map (H, W) -> uint8 RGB via a matplotlib colormap, normalised to [lo, hi]."""
+    x = np.nan_to_num(np.asarray(x, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    lo = float(np.min(x)) if lo is None else lo
+    hi = float(np.max(x)) if hi is None else hi
+    t = np.clip((x - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
+    return to_uint8(matplotlib.colormaps[name](t)[..., :3])
+
+
+OUTPUTS: tuple[str, ...] = ("RGB", "depth", "opacity", "beta^2")
+OUTPUT_KEY = {"RGB": "rgb", "depth": "depth", "opacity": "opacity", "beta^2": "beta2"}
+
+
+def visualize_output(out: dict, which: str) -> np.ndarray:
+    """One render output as a uint8 image: RGB as is, depth/opacity/beta^2 colormapped."""
+    key = OUTPUT_KEY[which]
+    x = out.get(key)
+    if x is None:
+        shape = next(v for v in out.values() if v is not None).shape[:2]
+        return np.full((*shape, 3), 128, np.uint8)  # grey: this model has no beta^2
+    x = np.asarray(x)
+    if key == "rgb":
+        return to_uint8(x)
+    x = x.reshape(x.shape[:2])
+    if key == "opacity":
+        return colormap(x, "viridis", 0.0, 1.0)
+    if key == "depth":
+        op = out.get("opacity")
+        fg = x[np.asarray(op).reshape(x.shape) > 0.5] if op is not None else x.ravel()
+        lo, hi = (np.percentile(fg, 2), np.percentile(fg, 98)) if fg.size else (None, None)
+        return colormap(x, "turbo", lo, hi)
+    v = np.log10(np.maximum(x, 1e-8))  # beta^2 spans decades: show log10
+    return colormap(v, "magma", float(np.percentile(v, 1)), float(np.percentile(v, 99)))
+
+
+def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """|pred - gt| averaged over RGB, colormapped (inferno, 0..0.5)."""
+    e = np.abs(np.asarray(pred, np.float32)[..., :3] - np.asarray(gt, np.float32)[..., :3]).mean(-1)
+    return colormap(e, "inferno", 0.0, 0.5)
+
+
+def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
+    """PSNR = -10 log10(MSE) for images in [0, 1]."""
+    mse = float(np.mean((np.asarray(pred, np.float64)[..., :3] - np.asarray(gt, np.float64)[..., :3]) ** 2))
+    return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
+
+
+def resize_nearest(img: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Nearest-neighbour resize (H, W, ...) -> (height, width, ...)."""
+    h, w = img.shape[:2]
+    rows = np.minimum((np.arange(height) + 0.5) * h / height, h - 1).astype(int)
+    cols = np.minimum((np.arange(width) + 0.5) * w / width, w - 1).astype(int)
+    return img[rows][:, cols]

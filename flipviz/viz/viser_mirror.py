@@ -1,0 +1,238 @@
+"""The symmetry lesson: drag the mirror plane, watch the mirrored cameras move, score the assumption.
+
+A transform gizmo sits on the mirror plane (its local +z is the plane normal). Moving it
+recomputes the paper's initial mirrored poses live (`mirror_cameras_for_plane`: reflect each
+input centre, back onto the sphere, look at its centre) and shows them as preview frustums
+carrying the flipped images. A button restarts training with that plane. The consistency score
+of a mirrored view is the PSNR of the current model rendered from that camera against its
+flipped image: low where the symmetry assumption fails.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+import viser
+
+from flipviz.data.cameras import Camera
+from flipviz.data.dataset import Plane
+from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
+from flipviz.geometry.sphere import Sphere
+from flipviz.training.events import ImagesEvent, SetupEvent
+from flipviz.viz.viser_common import (
+    plane_from_pose,
+    plane_to_arg,
+    plane_wxyz,
+    psnr,
+    resize_nearest,
+    thumbnail,
+    to_viser_pose,
+)
+from flipviz.viz.viser_scene import plane_quad
+
+if TYPE_CHECKING:
+    from flipviz.viz.viser_app import App
+
+LESSON = """**What the mirror assumes.** Just Flip assumes the object is *mirror-symmetric* about a
+plane through the centre of the sphere fitted to the input cameras. Each input image is flipped
+left-right and given a pose: the camera centre is reflected through the plane, put back on the
+sphere and aimed at its centre. If the object really is symmetric, a camera there would see
+exactly the flipped image, so the unobserved side gets training views for free; bundle adjustment
+corrects the small pose errors and the learned variance beta^2 down-weights pixels that still disagree.
+
+Where the object is **not** symmetric (a mug's handle, a one-sided lamp), the flipped views
+contradict the real ones. Drag the plane gizmo to see the mirrored cameras move (orange: preview),
+press *Score mirrors* to measure each flipped view against the current model (red frustums:
+inconsistent), then restart training with the new plane."""
+
+PREVIEW_COLOR = (255, 170, 0)
+
+
+class MirrorLesson:
+    def __init__(self, app: "App") -> None:
+        self.app = app
+        gui = app.server.gui
+        gui.add_markdown(LESSON)
+        self.plane_text = gui.add_markdown("_No run yet._")
+        self.show_preview = gui.add_checkbox("Show plane preview", True)
+        self.score_btn = gui.add_button("Score mirrors", icon=viser.Icon.RULER, hint="Render each mirrored view now")
+        self.reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
+        self.restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
+        self.table = gui.add_markdown("_Scores appear with the first image event or Score mirrors._")
+        self.inputs: list[Camera] = []
+        self.flipped: list[np.ndarray] = []
+        self.sphere: Sphere | None = None
+        self.train_plane: Plane | None = None
+        self.plane: Plane | None = None
+        self.gizmo: viser.TransformControlsHandle | None = None
+        self.preview: list[viser.CameraFrustumHandle] = []
+        self.preview_frame: viser.FrameHandle | None = None
+        self.preview_cams: list[Camera] = []
+        self.moved = False
+        self.scores: dict[str, list[float]] = {}
+        self._lock = threading.Lock()
+        self.score_btn.on_click(lambda _: self.app.worker.submit("mirror-score", self._score_now, priority=0))
+        self.reset_btn.on_click(lambda _: self.reset_plane())
+        self.restart_btn.on_click(lambda _: self.restart())
+        self.show_preview.on_update(lambda _: self._set_preview_visible())
+
+    # ---- per run ----------------------------------------------------------------------------
+    def build(self, setup: SetupEvent) -> None:
+        with self._lock:
+            inputs = [c for c in setup.cameras if c.kind == "input"]
+            self.inputs = [c.camera for c in inputs]
+            self.flipped = [flip_image(c.image) if c.image is not None else None for c in inputs]
+            self.sphere = Sphere(setup.sphere_center, setup.sphere_radius)
+            plane = setup.plane
+            if plane is None:  # a method without mirrors: show the plane it would use
+                try:
+                    plane = mirror_plane(self.app.cfg.mirror_plane, self.inputs, self.sphere, setup.true_plane)
+                except Exception:
+                    plane = mirror_plane("opposite", self.inputs, self.sphere)
+            self.train_plane = plane
+            self.scores = {}
+            r = float(setup.sphere_radius)
+            scene = self.app.server.scene
+            self.gizmo = scene.add_transform_controls(
+                "/plane", scale=0.35 * r, wxyz=plane_wxyz(plane.normal), position=plane.point, opacity=0.8
+            )
+            v, f = plane_quad(0.55 * r)
+            scene.add_mesh_simple(
+                "/plane/quad", v, f, color=(255, 170, 0), opacity=0.18, side="double", cast_shadow=False,
+                receive_shadow=False,
+            )  # fmt: skip
+            self.preview, self.preview_frame = [], None
+            self.moved = False
+            self.gizmo.on_update(self._on_gizmo)
+            self._apply_plane(plane)
+        self.table.content = "_Scores appear with the first image event or Score mirrors._"
+
+    def clear(self) -> None:
+        with self._lock:
+            if self.gizmo is not None:
+                self.app.server.scene.remove_by_name("/plane")
+                self.app.server.scene.remove_by_name("/preview")
+            self.gizmo, self.preview, self.preview_cams, self.preview_frame = None, [], [], None
+
+    # ---- the plane --------------------------------------------------------------------------
+    def _on_gizmo(self, ev: viser.TransformControlsEvent) -> None:
+        self.moved = True
+        self._apply_plane(plane_from_pose(ev.target.wxyz, ev.target.position))
+
+    def set_plane(self, plane: Plane) -> None:
+        """Move the gizmo (as if dragged) to `plane`."""
+        if self.gizmo is None:
+            return
+        self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane.normal), plane.point
+        self.moved = True
+        self._apply_plane(plane)
+
+    def reset_plane(self) -> None:
+        if self.train_plane is not None and self.gizmo is not None:
+            self.gizmo.wxyz, self.gizmo.position = plane_wxyz(self.train_plane.normal), self.train_plane.point
+            self.moved = False
+            self._apply_plane(self.train_plane)
+
+    def _apply_plane(self, plane: Plane) -> None:
+        """Recompute the initial mirrored poses for `plane` and move the preview frustums."""
+        if self.sphere is None or not self.inputs:
+            return
+        try:
+            cams = mirror_cameras_for_plane(self.inputs, plane, self.sphere)
+        except Exception as e:  # e.g. a reflected centre at the sphere centre
+            self.plane_text.content = f"_Cannot mirror with this plane: {e}_"
+            return
+        self.plane, self.preview_cams = plane, cams
+        scene = self.app.server.scene
+        r = float(self.sphere.radius)
+        with self.app.server.atomic():
+            if not self.preview:
+                self.preview_frame = scene.add_frame("/preview", show_axes=False, visible=self._preview_wanted())
+                for k, (cam, img) in enumerate(zip(cams, self.flipped)):
+                    wxyz, pos = to_viser_pose(cam.c2w)
+                    self.preview.append(
+                        scene.add_camera_frustum(
+                            f"/preview/{k}", fov=cam.fov_y, aspect=cam.width / cam.height, scale=0.07 * r,
+                            color=PREVIEW_COLOR, image=thumbnail(img) if img is not None else None, wxyz=wxyz,
+                            position=pos, thickness=0.01 * r / 4.0, cast_shadow=False, receive_shadow=False,
+                        )  # fmt: skip
+                    )
+            else:
+                for h, cam in zip(self.preview, cams):
+                    h.wxyz, h.position = to_viser_pose(cam.c2w)
+            links = np.stack([np.stack([a.center, b.center]) for a, b in zip(self.inputs, cams)]).astype(np.float32)
+            scene.add_line_segments("/preview/links", links, PREVIEW_COLOR, thickness=1.5, thickness_units="screen")
+        self._set_preview_visible()
+        p, n = plane.point, plane.normal
+        same = self.train_plane is not None and np.allclose(plane.point, self.train_plane.point) and np.allclose(
+            plane.normal, self.train_plane.normal
+        )
+        self.plane_text.content = (
+            f"Plane: point ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f})"
+            + (" - the training plane." if same else " - **moved**: restart to train with it.")
+        )
+
+    def _preview_wanted(self) -> bool:
+        return bool(self.show_preview.value and self.moved)
+
+    def _set_preview_visible(self) -> None:
+        if self.preview_frame is not None:
+            self.preview_frame.visible = self._preview_wanted()
+
+    def restart(self) -> None:
+        if self.plane is None:
+            return
+        cfg = replace(self.app.cfg, mirror_plane=plane_to_arg(self.plane))
+        if cfg.method not in ("flip", "flip+u"):
+            cfg = replace(cfg, method="flip+u")  # the plane only matters to the Flip methods
+        self.app.restart(cfg)
+
+    # ---- consistency scores -----------------------------------------------------------------
+    def on_images(self, event: ImagesEvent) -> None:
+        """PSNR of the model rendered from each (BA-refined) mirrored camera vs its flipped image."""
+        if event.mirror_views:
+            s = [psnr(v.rgb, v.gt) if v.gt is not None else float("nan") for v in event.mirror_views]
+            self.scores["training (BA) poses, step %d" % event.step] = s
+            self.app.scene.set_mirror_colors(s)
+            self._show_table([v.name for v in event.mirror_views])
+
+    def _score_now(self) -> None:
+        """Render from the preview poses (plane moved) or the current BA poses, and score them."""
+        if self.moved and self.preview_cams:
+            cams, label = self.preview_cams, "plane preview, step %d" % self.app.step
+        else:
+            c2w = self.app.mirror_c2w
+            if c2w is None or len(c2w) != len(self.inputs):
+                cams = mirror_cameras_for_plane(self.inputs, self.train_plane, self.sphere)
+            else:
+                cams = [c.with_pose(T) for c, T in zip(self.inputs, c2w)]
+            label = "training poses, step %d" % self.app.step
+        scores = []
+        for cam, gt in zip(cams, self.flipped):
+            out = self.app.render(cam, outputs=("rgb",))
+            if out is None or gt is None:
+                scores.append(float("nan"))
+                continue
+            rgb = out["rgb"]
+            scores.append(psnr(rgb, resize_nearest(gt, rgb.shape[1], rgb.shape[0])))
+        self.scores[label] = scores
+        if not self.moved:
+            self.app.scene.set_mirror_colors(scores)
+        self._show_table([f"{c.name}_flip" for c in self.inputs])
+
+    def _show_table(self, names: list[str]) -> None:
+        cols = list(self.scores)[-3:]  # the latest three scorings
+        head = "| mirrored view | " + " | ".join(cols) + " |\n|---|" + "---|" * len(cols) + "\n"
+        rows = []
+        for i, n in enumerate(names):
+            cells = [f"{self.scores[c][i]:.1f} dB" if i < len(self.scores[c]) else "" for c in cols]
+            rows.append(f"| {n} | " + " | ".join(cells) + " |")
+        means = [np.nanmean(self.scores[c]) if len(self.scores[c]) else float("nan") for c in cols]
+        rows.append("| **mean** | " + " | ".join(f"**{m:.1f} dB**" for m in means) + " |")
+        self.table.content = (
+            "Consistency = PSNR of the model seen from each mirrored camera vs its flipped image "
+            "(low = the symmetry assumption fails there).\n\n" + head + "\n".join(rows)
+        )

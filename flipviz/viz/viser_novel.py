@@ -1,0 +1,188 @@
+"""Novel cameras (draggable gizmos you render the model from) and 'snap to view k'."""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+import numpy as np
+import viser
+
+from flipviz.data.cameras import Camera
+from flipviz.viz.viser_common import (
+    OUTPUTS,
+    camera_from_viser,
+    error_map,
+    psnr,
+    to_uint8,
+    to_viser_pose,
+    upscale,
+    visualize_output,
+)
+
+if TYPE_CHECKING:
+    from flipviz.viz.viser_app import App
+
+BLANK = np.full((8, 8, 3), 235, np.uint8)
+
+
+class NovelCameras:
+    """Draggable cameras (transform gizmo + frustum) and a Render button; shared by all clients."""
+
+    def __init__(self, app: "App") -> None:
+        self.app = app
+        self.gizmos: dict[str, viser.TransformControlsHandle] = {}
+        self.frustums: dict[str, viser.CameraFrustumHandle] = {}
+        self._lock = threading.Lock()
+        gui = app.server.gui
+        self.add_btn = gui.add_button("Add novel camera", icon=viser.Icon.CAMERA_PLUS, hint="At your current view")
+        self.select = gui.add_dropdown("Novel camera", ("(none)",))
+        self.output = gui.add_dropdown("Novel output", OUTPUTS, initial_value="RGB")
+        self.render_btn = gui.add_button("Render novel view", icon=viser.Icon.PHOTO)
+        self.image = gui.add_image(BLANK, label="Novel render", format="jpeg")
+        self.status = gui.add_markdown("_Add a camera, drag its gizmo, press Render._")
+        self.add_btn.on_click(lambda ev: self.add(ev.client))
+        self.render_btn.on_click(lambda _: self.request(self.select.value, priority=0))
+        self.output.on_update(lambda _: self.request(self.select.value, priority=0))
+
+    def add(self, client: viser.ClientHandle | None = None) -> str:
+        """Add a novel camera at `client`'s current view (or looking at the sphere centre)."""
+        setup = self.app.setup
+        with self._lock:
+            name = f"cam{len(self.gizmos)}"
+            if client is not None:
+                try:
+                    wxyz, pos = client.camera.wxyz.copy(), client.camera.position.copy()
+                except AssertionError:
+                    client = None
+            if client is None:
+                center = setup.sphere_center if setup is not None else np.zeros(3)
+                r = setup.sphere_radius if setup is not None else 4.0
+                c = center + r * np.array([0.6, -0.6, 0.5]) / np.linalg.norm([0.6, -0.6, 0.5])
+                from flipviz.geometry.poses import look_at
+
+                wxyz, pos = to_viser_pose(look_at(c, center))
+            scale = 0.15 * (setup.sphere_radius if setup is not None else 4.0)
+            g = self.app.server.scene.add_transform_controls(f"/novel/{name}", scale=scale, wxyz=wxyz, position=pos)
+            fov, aspect = self._fov_aspect()
+            f = self.app.server.scene.add_camera_frustum(
+                f"/novel/{name}/frustum", fov=fov, aspect=aspect, scale=0.6 * scale, color=(220, 30, 160),
+                thickness=0.02 * scale, cast_shadow=False, receive_shadow=False,
+            )  # fmt: skip
+            self.gizmos[name], self.frustums[name] = g, f
+            self.select.options = tuple(self.gizmos)
+            self.select.value = name
+
+        @g.on_update
+        def _(ev: viser.TransformControlsEvent) -> None:
+            if ev.phase == "end":
+                self.request(name, priority=1)
+
+        return name
+
+    def _fov_aspect(self) -> tuple[float, float]:
+        setup = self.app.setup
+        cams = [c.camera for c in setup.cameras if c.kind == "input"] if setup is not None else []
+        return (cams[0].fov_y, cams[0].width / cams[0].height) if cams else (0.69, 1.0)
+
+    def camera(self, name: str) -> Camera | None:
+        g = self.gizmos.get(name)
+        if g is None:
+            return None
+        res = int(self.app.cfg.res)
+        fov, aspect = self._fov_aspect()
+        return camera_from_viser(g.wxyz, g.position, fov, res, max(8, round(res / aspect)), name)
+
+    def request(self, name: str, priority: int = 0) -> None:
+        if name in self.gizmos:
+            self.app.worker.submit(("novel", name), lambda: self._render(name), priority=priority)
+
+    def _render(self, name: str) -> None:
+        cam = self.camera(name)
+        if cam is None:
+            return
+        out = self.app.render(cam)
+        if out is None:
+            self.status.content = "_No model yet: training is starting._"
+            return
+        img = visualize_output(out, self.output.value)
+        self.image.image = upscale(img, 192)
+        self.frustums[name].image = img
+        self.status.content = f"`{name}`: {self.output.value}, {cam.width}x{cam.height} px, step {self.app.step}"
+
+
+class SnapToView:
+    """Jump a client's camera to an input / mirrored / test view; show GT, render and error."""
+
+    def __init__(self, app: "App") -> None:
+        self.app = app
+        gui = app.server.gui
+        self.select = gui.add_dropdown("View", ("(none)",))
+        self.snap_btn = gui.add_button("Snap to view", icon=viser.Icon.FOCUS_2, hint="Moves your camera there")
+        self.text = gui.add_markdown("_Pick a view and snap to it._")
+        self.gt = gui.add_image(BLANK, label="Ground truth (flipped for mirrors)", format="jpeg")
+        self.pred = gui.add_image(BLANK, label="Render", format="jpeg")
+        self.err = gui.add_image(BLANK, label="|error|", format="jpeg")
+        self.views: dict[str, tuple[str, int, Camera, np.ndarray | None]] = {}
+        self.snap_btn.on_click(lambda ev: self.snap(self.select.value, ev.client))
+
+    def rebuild(self) -> None:
+        """List the run's views (called on every new run)."""
+        setup = self.app.setup
+        self.views = {}
+        counts: dict[str, int] = {}
+        for info in setup.cameras if setup is not None else []:
+            if info.kind not in ("input", "mirror_init", "test"):
+                continue
+            k = counts.get(info.kind, 0)
+            counts[info.kind] = k + 1
+            label = {"input": "input", "mirror_init": "mirror", "test": "test"}[info.kind]
+            self.views[f"{label} {k}: {info.camera.name}"] = (info.kind, k, info.camera, info.image)
+        self.select.options = tuple(self.views) or ("(none)",)
+
+    def current_camera(self, key: str) -> Camera | None:
+        v = self.views.get(key)
+        if v is None:
+            return None
+        kind, k, cam, _ = v
+        c2w = self.app.mirror_c2w
+        if kind == "mirror_init" and c2w is not None and k < len(c2w):
+            cam = cam.with_pose(c2w[k])  # the BA-refined pose
+        return cam
+
+    def snap(self, key: str, client: viser.ClientHandle | None) -> None:
+        cam = self.current_camera(key)
+        if cam is None:
+            return
+        if client is not None:
+            move_client_camera(client, cam, self.app.setup.sphere_center if self.app.setup is not None else None)
+        self.app.worker.submit("snap", lambda: self._render(key), priority=0)
+
+    def _render(self, key: str) -> None:
+        cam = self.current_camera(key)
+        v = self.views.get(key)
+        if cam is None or v is None:
+            return
+        out = self.app.render(cam)
+        if out is None:
+            return
+        gt = v[3]
+        self.pred.image = upscale(to_uint8(out["rgb"]), 160)
+        if gt is not None:
+            self.gt.image = upscale(to_uint8(gt), 160)
+            self.err.image = upscale(error_map(out["rgb"], gt), 160)
+            self.text.content = f"**{key}** at step {self.app.step}: PSNR **{psnr(out['rgb'], gt):.2f} dB**"
+        else:
+            self.text.content = f"**{key}** at step {self.app.step} (no ground truth)"
+
+
+def move_client_camera(client: viser.ClientHandle, cam: Camera, target: np.ndarray | None = None) -> None:
+    """Put a browser camera exactly at a flipviz camera: position, viewing direction, up, fov."""
+    c = cam.center
+    forward = -cam.c2w[:3, 2]  # OpenGL: the camera looks along -z
+    dist = float(np.linalg.norm(c - target)) if target is not None else 1.0
+    with client.atomic():
+        client.camera.fov = cam.fov_y
+        client.camera.position = c
+        client.camera.look_at = c + max(dist, 1e-3) * forward
+        client.camera.up_direction = cam.c2w[:3, 1]

@@ -1,0 +1,153 @@
+"""The run's 3D scene in viser: fitted sphere, planes, camera frustums, BA trajectories.
+
+Everything of one run lives under the scene node "/run", so a restart removes it in one call.
+Each group is a frame whose visibility the GUI toggles (children inherit it).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import viser
+
+from flipviz.data.dataset import Plane
+from flipviz.training.events import CameraInfo, SetupEvent
+from flipviz.viz.viser_common import plane_wxyz, thumbnail, to_viser_pose
+
+# group key -> (label in the GUI, frustum colour)
+GROUPS: dict[str, tuple[str, tuple[int, int, int]]] = {
+    "inputs": ("input cameras", (40, 110, 230)),
+    "tests": ("test cameras (unobserved)", (110, 110, 110)),
+    "mirrors": ("mirrored cameras (BA)", (240, 130, 20)),
+    "mirror_true": ("exact reflections", (30, 170, 60)),
+    "upper": ("upper-bound cameras", (150, 60, 200)),
+    "trajectories": ("BA trajectories", (240, 130, 20)),
+    "sphere": ("fitted sphere", (120, 160, 255)),
+    "true_plane": ("true symmetry plane", (30, 170, 60)),
+}
+KIND_GROUP = {"input": "inputs", "test": "tests", "mirror_init": "mirrors", "mirror_true": "mirror_true", "upper": "upper"}
+MAX_TRAJ_POINTS = 200
+
+
+def plane_quad(half: float) -> tuple[np.ndarray, np.ndarray]:
+    """A square in the local xy plane (normal +z), as vertices and two triangles."""
+    v = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]], np.float32)
+    return v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32)
+
+
+def add_plane(scene: viser.SceneApi, name: str, plane: Plane, half: float, color, opacity: float = 0.25):
+    """A translucent square for `plane`, centred on plane.point."""
+    v, f = plane_quad(half)
+    return scene.add_mesh_simple(
+        name, v, f, color=color, opacity=opacity, side="double", wxyz=plane_wxyz(plane.normal),
+        position=plane.point, cast_shadow=False, receive_shadow=False,
+    )  # fmt: skip
+
+
+class RunScene:
+    """Draws one run's cameras and geometry; moves the mirrored frustums as BA refines them."""
+
+    def __init__(self, server: viser.ViserServer) -> None:
+        self.server = server
+        self.visible = {g: g not in ("upper", "mirror_true") for g in GROUPS}
+        self.setup: SetupEvent | None = None
+        self.mirror_handles: list[viser.CameraFrustumHandle] = []
+        self.mirror_names: list[str] = []
+        self.history: list[list[np.ndarray]] = []
+        self.scale = 0.3
+        self.groups: dict[str, viser.FrameHandle] = {}
+        self._lock = threading.Lock()
+
+    # ---- building -------------------------------------------------------------------------
+    def build(self, setup: SetupEvent) -> None:
+        with self._lock:
+            self._clear()
+            self.setup = setup
+            scene = self.server.scene
+            r = float(setup.sphere_radius)
+            self.scale = 0.09 * r
+            scene.add_frame("/run", show_axes=False)
+            self.groups = {g: scene.add_frame(f"/run/{g}", show_axes=False, visible=self.visible[g]) for g in GROUPS}
+            scene.add_icosphere(
+                "/run/sphere/mesh", radius=r, color=GROUPS["sphere"][1], subdivisions=3, wireframe=True,
+                opacity=0.25, position=setup.sphere_center, cast_shadow=False, receive_shadow=False,
+            )  # fmt: skip
+            scene.add_point_cloud(
+                "/run/sphere/center", np.asarray(setup.sphere_center, np.float32)[None], (60, 90, 255),
+                point_size=0.06 * r / 4.0, point_shape="circle",
+            )  # fmt: skip
+            if setup.true_plane is not None:
+                add_plane(scene, "/run/true_plane/quad", setup.true_plane, 0.5 * r, GROUPS["true_plane"][1], 0.15)
+            counts: dict[str, int] = {}
+            for info in setup.cameras:
+                g = KIND_GROUP.get(info.kind)
+                if g is None:
+                    continue
+                k = counts.get(g, 0)
+                counts[g] = k + 1
+                h = self._add_frustum(f"/run/{g}/{k}", info, GROUPS[g][1], with_image=g != "tests")
+                if g == "mirrors":
+                    self.mirror_handles.append(h)
+                    self.mirror_names.append(info.camera.name)
+                    self.history.append([info.camera.center.copy()])
+
+    def _add_frustum(self, name: str, info: CameraInfo, color, with_image: bool = True):
+        cam = info.camera
+        wxyz, pos = to_viser_pose(cam.c2w)
+        image = thumbnail(info.image) if (with_image and info.image is not None) else None
+        return self.server.scene.add_camera_frustum(
+            name, fov=cam.fov_y, aspect=cam.width / cam.height, scale=self.scale, color=color, image=image,
+            wxyz=wxyz, position=pos, thickness=0.012 * self.scale / 0.3, cast_shadow=False, receive_shadow=False,
+        )  # fmt: skip
+
+    def _clear(self) -> None:
+        if self.setup is not None:
+            self.server.scene.remove_by_name("/run")
+        self.groups = {}
+        self.mirror_handles, self.mirror_names, self.history = [], [], []
+        self.setup = None
+
+    def clear(self) -> None:
+        with self._lock:
+            self._clear()
+
+    # ---- updates --------------------------------------------------------------------------
+    def set_visible(self, group: str, visible: bool) -> None:
+        with self._lock:
+            self.visible[group] = bool(visible)
+            if group in self.groups:
+                self.groups[group].visible = bool(visible)
+
+    def update_mirrors(self, c2w: np.ndarray) -> None:
+        """Move the mirrored frustums to the refined poses (M, 4, 4) and extend their trajectories."""
+        with self._lock:
+            if len(c2w) != len(self.mirror_handles):
+                return
+            with self.server.atomic():
+                for h, T, hist in zip(self.mirror_handles, c2w, self.history):
+                    wxyz, pos = to_viser_pose(T)
+                    h.wxyz, h.position = wxyz, pos
+                    if np.linalg.norm(T[:3, 3] - hist[-1]) > 1e-6:
+                        hist.append(T[:3, 3].copy())
+                        if len(hist) > MAX_TRAJ_POINTS:
+                            del hist[1:-1:2]  # keep the start and the end, thin out the middle
+            self._draw_trajectories()
+
+    def _draw_trajectories(self) -> None:
+        segs = [np.stack([a, b]) for hist in self.history for a, b in zip(hist[:-1], hist[1:])]
+        if not segs:
+            return
+        self.server.scene.add_line_segments(
+            "/run/trajectories/lines", np.asarray(segs, np.float32), GROUPS["trajectories"][1],
+            thickness=3.0, thickness_units="screen",
+        )  # fmt: skip
+
+    def set_mirror_colors(self, scores: list[float] | None, lo: float = 12.0, hi: float = 30.0) -> None:
+        """Colour the mirrored frustums by their consistency PSNR (red = inconsistent)."""
+        with self._lock:
+            if scores is None or len(scores) != len(self.mirror_handles):
+                return
+            for h, s in zip(self.mirror_handles, scores):
+                t = float(np.clip((s - lo) / (hi - lo), 0.0, 1.0)) if np.isfinite(s) else 1.0
+                h.color = (int(230 * (1 - t) + 30 * t), int(40 * (1 - t) + 170 * t), int(40 * (1 - t) + 60 * t))

@@ -1,0 +1,127 @@
+"""A minimal headless viser client speaking the real websocket protocol (for tests and benchmarks).
+
+Wire format (viser 1.1.1, `viser/infra/_infra.py`): the client sends one msgpack dict per
+websocket message, {"type": <message class name>, **fields}. The server sends frames
+    [u64 inner size][u64 zstd size][zstd(msgpack {"messages": [...], ...})][padded raw buffers],
+whose messages are dicts with a "type" key (numpy arrays are replaced by binary placeholders).
+A client counts as connected (on_client_connect fires) only after its first ViewerCameraMessage.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any, Callable
+
+import msgspec
+import numpy as np
+import viser
+import websockets
+import zstandard
+
+_zstd = zstandard.ZstdDecompressor()
+
+
+def decode_frame(raw: bytes) -> list[dict]:
+    """Server frame -> list of message dicts (binary buffers are left as placeholders)."""
+    inner_size = int.from_bytes(raw[0:8], "little")
+    comp_size = int.from_bytes(raw[8:16], "little")
+    inner = _zstd.decompress(raw[16 : 16 + comp_size], max_output_size=inner_size)
+    return list(msgspec.msgpack.decode(inner)["messages"])
+
+
+def wxyz_look_at(position: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple[float, ...]:
+    """Quaternion (w, x, y, z) of an OpenCV camera (+z forward, -y up) at `position` looking at `target`."""
+    z = np.asarray(target, float) - np.asarray(position, float)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, -np.asarray(up, float))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z], 1)
+    return tuple(float(v) for v in viser.transforms.SO3.from_matrix(R).wxyz)
+
+
+class ViserTestClient:
+    """Connects, records every message it receives, and sends camera / GUI / gizmo messages."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.ws: Any = None
+        self.messages: list[dict] = []
+        self.gui: dict[str, dict] = {}  # label -> creation message (the latest one)
+        self._reader: asyncio.Task | None = None
+        self._new = asyncio.Event()
+
+    async def __aenter__(self) -> "ViserTestClient":
+        self.ws = await websockets.connect(
+            self.url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None, compression=None
+        )
+        self._reader = asyncio.create_task(self._read())
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        if self._reader is not None:
+            self._reader.cancel()
+        await self.ws.close()
+
+    async def _read(self) -> None:
+        try:
+            async for raw in self.ws:
+                for m in decode_frame(raw):
+                    self.messages.append(m)
+                    props = m.get("props")
+                    if "uuid" in m and isinstance(props, dict) and props.get("label"):
+                        self.gui[props["label"]] = m
+                self._new.set()
+        except websockets.ConnectionClosed:
+            pass
+
+    async def send(self, type_name: str, **fields) -> None:
+        await self.ws.send(msgspec.msgpack.encode({"type": type_name, **fields}))
+
+    async def send_camera(self, position, look_at=(0.0, 0.0, 0.0), fov=0.9, size=(480, 640)) -> None:
+        position = tuple(float(v) for v in position)
+        await self.send(
+            "ViewerCameraMessage", wxyz=wxyz_look_at(np.array(position), np.array(look_at)), position=position,
+            fov=float(fov), near=0.01, far=100.0, image_height=int(size[0]), image_width=int(size[1]),
+            look_at=tuple(float(v) for v in look_at), up_direction=(0.0, 0.0, 1.0),
+        )  # fmt: skip
+
+    async def click(self, label: str) -> None:
+        await self.send("GuiUpdateMessage", uuid=self.gui[label]["uuid"], updates={"value": True})
+
+    async def set_value(self, label: str, value) -> None:
+        await self.send("GuiUpdateMessage", uuid=self.gui[label]["uuid"], updates={"value": value})
+
+    async def move_gizmo(self, name: str, position, wxyz=(1.0, 0.0, 0.0, 0.0)) -> None:
+        position = tuple(float(v) for v in position)
+        wxyz = tuple(float(v) for v in wxyz)
+        await self.send("TransformControlsDragStartMessage", name=name, owner="")
+        await self.send("TransformControlsUpdateMessage", name=name, wxyz=wxyz, position=position, owner="")
+        await self.send("TransformControlsDragEndMessage", name=name, owner="")
+
+    async def wait_for(self, pred: Callable[[dict], bool], timeout: float = 20.0, start: int = 0) -> dict:
+        """The first message (from index `start`) satisfying `pred`; raises TimeoutError."""
+        deadline = time.monotonic() + timeout
+        i = start
+        while True:
+            while i < len(self.messages):
+                if pred(self.messages[i]):
+                    return self.messages[i]
+                i += 1
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError("no matching viser message arrived")
+            self._new.clear()
+            try:
+                await asyncio.wait_for(self._new.wait(), timeout=min(left, 0.5))
+            except asyncio.TimeoutError:
+                pass
+
+    async def wait_gui(self, label: str, timeout: float = 20.0) -> dict:
+        deadline = time.monotonic() + timeout
+        while label not in self.gui:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"GUI element {label!r} never arrived")
+            await asyncio.sleep(0.05)
+        return self.gui[label]

@@ -1,0 +1,42 @@
+"""The front door: README commands, CI script and the CLI's help and errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def test_ci_runs_the_readme_test_command() -> None:
+    ci_line = [ln for ln in (ROOT / ".ci/run").read_text().splitlines() if ln.startswith("python3 -m venv")]
+    assert len(ci_line) == 1
+    readme = (ROOT / "README.md").read_text()
+    assert ci_line[0] in readme, "README's test command and .ci/run differ"
+    assert "torch==2.13.0" in ci_line[0], "the install must pin the CPU torch wheel"
+
+
+def test_app_help() -> None:
+    r = _run("app.py", "--scene", "chair", "--help")
+    assert r.returncode == 0, r.stderr
+    for flag in ("--scene", "--method", "--config", "--port", "--host", "--data"):
+        assert flag in r.stdout
+
+
+def test_cli_subcommands_help() -> None:
+    r = _run("-m", "flipviz.cli", "--help")
+    assert r.returncode == 0, r.stderr
+    for sub in ("train", "app", "bench", "export-scene"):
+        assert sub in r.stdout
+
+
+def test_missing_dataset_is_a_one_line_error(tmp_path: Path) -> None:
+    r = _run("-m", "flipviz.cli", "train", "--data", str(tmp_path / "nope"), "--steps", "1", "--no-rrd")
+    assert r.returncode == 2
+    err = r.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("flipviz: error:"), r.stderr
