@@ -25,6 +25,8 @@ class BenchConfig:
     """Image width in pixels."""
     steps: int = 3000
     """Optimisation steps per run."""
+    batch_rays: int = 4096
+    """Rays per optimisation step."""
     field: Literal["grid", "nerf"] = "grid"
     """Radiance field of every run (grid: fast dense voxel grid; nerf: the paper's MLP)."""
     out: Path = Path("bench")

@@ -51,7 +51,7 @@ def psnr_chart(rows: list[dict], methods: list[str], path: Path) -> Path:
     ax.set_xticks(np.arange(len(groups)), groups)
     ax.set_ylabel("PSNR (dB), unobserved views")
     ax.set_title("Mean over configurations")
-    ax.legend(fontsize=7, ncol=min(6, len(methods) + 1), loc="upper left")
+    ax.legend(fontsize=7, ncol=min(6, len(methods) + 1), loc="upper center", bbox_to_anchor=(0.5, -0.1), frameon=False)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -97,7 +97,7 @@ def qualitative_grid(out: Path, rows: list[dict], scene: str, methods: list[str]
             p, g = renders.get(name, (None, None))
             img_path = g if i == 0 else p
             if img_path is not None and img_path.is_file():
-                ax.imshow(plt.imread(str(img_path)))
+                ax.imshow(plt.imread(str(img_path)), interpolation="nearest")
             if psnrs.get(name) is not None:
                 ax.set_xlabel(f"{psnrs[name]:.1f} dB", fontsize=7, labelpad=1)
             if i == 0:

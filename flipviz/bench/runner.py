@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from flipviz.bench.config import BenchConfig, parse_configs, parse_list, parse_methods
-from flipviz.bench.executors import RESULT_FILE, RunTask, run_local, run_ray, write_json_atomic
+from flipviz.bench.executors import CHECKPOINT_FILE, RESULT_FILE, RunTask, run_local, run_ray, write_json_atomic
 from flipviz.data.dataset import DatasetError
 from flipviz.training.config import TrainConfig
 
@@ -39,7 +39,7 @@ class RunSpec:
     def train_config(self, cfg: BenchConfig, out: Path | None = None) -> TrainConfig:
         return TrainConfig(
             scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
-            config=self.config, res=cfg.res, steps=cfg.steps, field=cfg.field, ba=self.ba,
+            config=self.config, res=cfg.res, steps=cfg.steps, batch_rays=cfg.batch_rays, field=cfg.field, ba=self.ba,
             uncertainty=self.uncertainty, seed=cfg.seed, device=cfg.device, out=out, no_rrd=True,
             images_every=0,  # nobody watches: skip the periodic test renders
         )  # fmt: skip
@@ -119,13 +119,16 @@ def read_result(run_dir: Path) -> dict | None:
 
 
 def _prewarm(specs: list[RunSpec], res: int) -> None:
-    """Load each scene once here, so parallel runs share the render cache instead of racing."""
+    """Render each built-in scene once here, so parallel runs share the render cache, not race."""
     try:
         from flipviz.data import load_scene
     except ImportError:
         return
-    for scene, data in dict.fromkeys((s.scene, s.data) for s in specs):
-        load_scene(scene, Path(data) if data else None, res)
+    for scene, data in dict.fromkeys((s.scene, s.data) for s in specs if s.data is None):
+        try:
+            load_scene(scene, Path(data) if data else None, res)
+        except Exception as e:  # its runs will fail and be recorded; the other scenes go on
+            log(f"scene {scene} does not load ({type(e).__name__}: {e}); its runs will fail".splitlines()[0])
 
 
 def log(msg: str, logfile: Path | None = None) -> None:
@@ -159,6 +162,8 @@ def run_bench(cfg: BenchConfig) -> Path:
             results[key] = r
             log(f"skipped {key}: already {r.get('status')} (run {r.get('run_id', '?')[:8]})", logfile)
         else:
+            if r is not None:  # a failed run is retried from scratch, not from its last checkpoint
+                (out / "runs" / key / CHECKPOINT_FILE).unlink(missing_ok=True)
             todo.append((key, spec))
     log(f"{len(specs)} runs planned: {len(results)} skipped (already done), {len(todo)} to run", logfile)
 
@@ -176,6 +181,9 @@ def run_bench(cfg: BenchConfig) -> Path:
 
         def on_result(res: dict) -> None:
             key = res["key"]
+            if res.get("status") == "interrupted":
+                log(f"interrupted {key}", logfile)
+                return
             if read_result(out / "runs" / key) is None:  # e.g. a died worker: record it here
                 write_json_atomic(out / "runs" / key / RESULT_FILE, res)
             results[key] = res

@@ -180,7 +180,7 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
     parts = [
         "# flipviz bench: Just Flip, paper Table III" + (" and Table II" if cfg.ablation else ""),
         "",
-        f"Settings: field `{cfg.field}`, {cfg.res} px, {cfg.steps} steps, seed {cfg.seed}, device `{cfg.device}`, "
+        f"Settings: field `{cfg.field}`, {cfg.res} px, {cfg.steps} steps of {cfg.batch_rays} rays, seed {cfg.seed}, device `{cfg.device}`, "
         f"configurations {', '.join(map(str, configs))}. {n_ok}/{len(rows)} runs ok. "
         f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items()) or 'n/a'}.",
         "",

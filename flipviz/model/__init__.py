@@ -64,7 +64,8 @@ class FieldConfig:
     beta2_mode: Literal["linear", "variance"] = "linear"
     """Compositing of beta_bar^2: linear sum w beta^2 (official code) or sum w^2 beta^2."""
     color_thresh: float = 1e-4
-    """Grid: colour is evaluated only where the sample weight exceeds this."""
+    """Grid: colour is evaluated only where the sample weight exceeds this (from occ_start on;
+    before, while every weight is still tiny, where it exceeds alpha_init / 100)."""
     lr_decay: float = 0.1
     """Field learning rates decay exponentially to lr * lr_decay at the end of training."""
     # --- grid -----------------------------------------------------------------------------
@@ -84,6 +85,11 @@ class FieldConfig:
     lr_mlp: float = 1e-3
     tv_density: float = 1e-4
     tv_feat: float = 1e-5
+    w_entropy: float = 1e-3
+    """Weight of the opacity-entropy term (DVGO's weight_entropy_last): pushes every ray to be
+    fully opaque or fully transparent, which removes the white fog a white background allows."""
+    tv_samples: int = 8192
+    """Random voxels per step on which the TV regulariser is estimated."""
     occ_start: int = 100
     """Step from which the occupancy mask is refreshed (all True before)."""
     occ_every: int = 50
@@ -129,11 +135,17 @@ class RadianceModel(nn.Module):
         self.register_buffer("bbox", torch.as_tensor(bbox, dtype=torch.float32, device=self.device))
         Field = GridField if cfg.kind == "grid" else NerfField
         self.field = Field(cfg, bbox, with_beta, self.device)
+        self._color_thresh = min(cfg.color_thresh, cfg.alpha_init / 100.0)
+        self._pending_opacity: list[Tensor] = []
 
     # --- rendering -----------------------------------------------------------------------
     def render_rays(self, origins: Tensor, dirs: Tensor, *, training: bool, n_samples: int | None = None) -> dict[str, Tensor]:
-        """rgb (R,3) on white, depth (R,), opacity (R,), sigma_mean (R,), beta2 (R,) if with_beta."""
-        return render_rays(
+        """rgb (R,3) on white, depth (R,), opacity (R,), sigma_mean (R,), beta2 (R,) if with_beta.
+
+        With training=True, samples are jittered and the batch's opacities are remembered for
+        the entropy term of the next `regulariser()` call.
+        """
+        out = render_rays(
             self.field,
             origins,
             dirs,
@@ -145,8 +157,11 @@ class RadianceModel(nn.Module):
             with_beta=self.with_beta,
             beta_min=self.cfg.beta_min,
             beta2_mode=self.cfg.beta2_mode,
-            color_thresh=self.cfg.color_thresh,
+            color_thresh=self._color_thresh if training else self.cfg.color_thresh,
         )
+        if training and self.cfg.w_entropy > 0 and torch.is_grad_enabled():
+            self._pending_opacity.append(out["opacity"])
+        return out
 
     @torch.no_grad()
     def render_image(self, camera: Camera, chunk: int = 16384) -> dict[str, np.ndarray]:
@@ -211,7 +226,9 @@ class RadianceModel(nn.Module):
             f.stage += 1
             f.upsample(cfg.grid_res[int(f.stage)])
             changed = True
-        if step >= cfg.occ_start and (changed or (step - cfg.occ_start) % cfg.occ_every == 0):
+        early = step < cfg.occ_start
+        self._color_thresh = min(cfg.color_thresh, cfg.alpha_init / 100.0) if early else cfg.color_thresh
+        if not early and (changed or (step - cfg.occ_start) % cfg.occ_every == 0):
             f.refresh_occupancy(self.sample_spacing())
         return changed
 
@@ -221,8 +238,15 @@ class RadianceModel(nn.Module):
         return float(ext) / self.cfg.n_samples
 
     def regulariser(self) -> Tensor:
-        """Already weighted (FieldConfig.tv_*): TV on the grids; 0 for the NeRF MLP."""
-        return self.field.regulariser()
+        """Already weighted: TV on the grids (FieldConfig.tv_*; none for the NeRF MLP) plus
+        w_entropy * mean binary entropy of the opacities of the rays rendered with training=True
+        since the last call (add it once per optimisation step)."""
+        r = self.field.regulariser()
+        if self._pending_opacity:
+            a = torch.cat(self._pending_opacity).clamp(1e-6, 1 - 1e-6)
+            self._pending_opacity = []
+            r = r + self.cfg.w_entropy * (-(a * torch.log(a) + (1 - a) * torch.log(1 - a))).mean()
+        return r
 
     @property
     def resolution(self) -> tuple[int, ...]:

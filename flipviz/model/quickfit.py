@@ -82,7 +82,7 @@ def fit(
             callback(step + 1, elapsed)
         if seconds is not None and elapsed > seconds:
             break
-    return {"steps": step + 1, "seconds": time.perf_counter() - t0, "loss": float(loss)}
+    return {"steps": step + 1, "seconds": time.perf_counter() - t0, "loss": float(loss.detach())}
 
 
 def image_psnr(model: RadianceModel, views: list[View]) -> float:

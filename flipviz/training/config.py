@@ -64,6 +64,10 @@ class TrainConfig:
     """Evaluate the test views also when a run is stopped early."""
     beta2_mode: Literal["linear", "variance"] = "linear"
     """How the per-sample variances composite into beta_hat^2 (see flipviz/model/renderer.py)."""
+    n_samples: int | None = None
+    """Samples per ray (None: the field's default)."""
+    grid_res: tuple[int, ...] | None = None
+    """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
 
     def to_dict(self) -> dict:
         d = asdict(self)

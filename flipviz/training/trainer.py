@@ -256,7 +256,7 @@ class Trainer:
         reg = self.model.regulariser()
         total = loss + reg if reg is not None else loss
         if not torch.isfinite(total):
-            raise NonFiniteLoss(f"loss became {float(total)} at step {self.step + 1}")
+            raise NonFiniteLoss(f"loss became {float(total.detach())} at step {self.step + 1}")
         self.opt_field.zero_grad(set_to_none=True)
         if self.opt_pose is not None:
             self.opt_pose.zero_grad(set_to_none=True)
@@ -268,7 +268,7 @@ class Trainer:
             mse = float(((out["rgb"] - target) ** 2).mean())
         self.step += 1
         return {
-            "loss": float(total),
+            "loss": float(total.detach()),
             "psnr": -10.0 * math.log10(max(mse, 1e-12)),
             "lr_field": float(self.opt_field.param_groups[0]["lr"]),
             "lr_pose": float(self.opt_pose.param_groups[0]["lr"]) if self.opt_pose is not None else 0.0,
@@ -394,6 +394,12 @@ def _field_config(cfg: TrainConfig):
     from flipviz.model import FieldConfig
 
     fc = FieldConfig(kind=cfg.field, beta2_mode=cfg.beta2_mode)
+    if cfg.n_samples is not None:
+        fc.n_samples = int(cfg.n_samples)
+    if cfg.grid_res is not None:
+        fc.grid_res = tuple(int(r) for r in cfg.grid_res)
+        n_up = len(fc.grid_res) - 1  # upsample at evenly spread fractions of the first half
+        fc.upsample_at = tuple(0.5 * (i + 1) / (n_up + 1) for i in range(n_up))
     if cfg.field == "nerf" and cfg.ba and cfg.method in ("flip", "flip+u"):
         fc.nerf_barf_c2f = (0.1, 0.5)  # BARF's coarse-to-fine positional encoding
     return fc

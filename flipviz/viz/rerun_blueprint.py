@@ -90,7 +90,7 @@ def make_blueprint(test_names: list[str], mirror_names: list[str]) -> rrb.Bluepr
     shares.append(1.6)
     return rrb.Blueprint(
         rrb.Horizontal(scene, rrb.Vertical(contents=right, row_shares=shares), column_shares=[1.0, 1.2]),
-        rrb.TimePanel(timeline=STEP, state="collapsed"),
+        rrb.TimePanel(timeline=STEP, state="collapsed", play_state="following"),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
     )

@@ -10,6 +10,8 @@ every few seconds, so a killed run still leaves a readable recording; `on_end` f
 from __future__ import annotations
 
 import atexit
+import os
+import signal
 import socket
 import subprocess
 import sys
@@ -53,19 +55,14 @@ class RerunOptions:
     max_map_size: int = 128  # scalar maps (beta^2, depth, opacity, error) are strided down to this
     step_stride: int = 1  # log every n-th StepEvent (on top of cfg.log_every)
     flush_every_s: float = 2.0
-    beta2_range: tuple[float, float] | None = None  # None: fixed from the first ImagesEvent
+    # beta^2 colour range, fixed for the run: at the NLL optimum beta^2 = ||C - C_hat||^2 (Sec. IV-C), so 1.0
+    # means "this pixel's colour is expected to be entirely wrong".
+    beta2_range: tuple[float, float] = (0.0, 1.0)
     error_max: float = 0.5  # colour range of the |render - GT| map
 
 
 def _u8(img: np.ndarray) -> np.ndarray:
     return (np.clip(np.asarray(img, dtype=np.float32), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-
-
-def _nice_ceil(x: float) -> float:
-    """Smallest 1, 2 or 5 times a power of ten that is >= x."""
-    x = max(float(x), 1e-6)
-    e = 10.0 ** np.floor(np.log10(x))
-    return float(next(m * e for m in (1.0, 2.0, 5.0, 10.0) if m * e >= x * (1 - 1e-9)))
 
 
 def _free_port(preferred: int) -> int:
@@ -77,6 +74,14 @@ def _free_port(preferred: int) -> int:
                 continue
             return int(s.getsockname()[1])
     raise RuntimeError("no free TCP port on 127.0.0.1")
+
+
+def _rerun_cli() -> list[str]:
+    """The `rerun` viewer binary shipped with rerun-sdk (or its Python launcher)."""
+    import rerun_cli
+
+    exe = Path(rerun_cli.__file__).parent / "rerun"
+    return [str(exe)] if exe.is_file() else [sys.executable, "-m", "rerun_cli"]
 
 
 def _wait_listening(port: int, timeout_s: float) -> bool:
@@ -99,6 +104,18 @@ def _plane_quad(plane: Plane, half: float) -> np.ndarray:
     return np.stack([p + half * (sa * a + sb * b) for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
 
 
+def camera_paths(cameras: list[CameraInfo]) -> list[str]:
+    """Entity path of each camera: world/cameras/<kind>/<name>, made unique within a kind."""
+    paths, seen = [], set()
+    for i, info in enumerate(cameras):
+        p = f"world/cameras/{info.kind}/{entity_name(info.camera.name)}"
+        if p in seen or not info.camera.name:
+            p = f"world/cameras/{info.kind}/{info.kind}_{i}"
+        seen.add(p)
+        paths.append(p)
+    return paths
+
+
 class RerunObserver(Observer):
     """Logs a run's setup, steps, periodic renders and end to a Rerun recording stream."""
 
@@ -112,7 +129,6 @@ class RerunObserver(Observer):
         self._n_step_events = 0
         self._mirror_names: list[str] = []
         self._prev_centers: np.ndarray | None = None
-        self._beta2_range = opts.beta2_range
         self._depth_range = (0.0, 10.0)
         self._logged_gt: set[str] = set()
         self._sinks_ready = False
@@ -136,9 +152,11 @@ class RerunObserver(Observer):
         """Start `rerun --serve-web` bound to 127.0.0.1 (web viewer + gRPC proxy); return the gRPC URL."""
         grpc_port = _free_port(self.opts.grpc_port)
         web_port = _free_port(self.opts.web_port)
-        cmd = [sys.executable, "-m", "rerun", "--serve-web", "--bind", "127.0.0.1"]
+        cmd = [*_rerun_cli(), "--serve-web", "--bind", "127.0.0.1"]
         cmd += ["--port", str(grpc_port), "--web-viewer-port", str(web_port)]
-        self._server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        # Its own process group, so that close() stops the viewer and nothing else.
+        self._server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                        start_new_session=True)
         atexit.register(self.close)
         if not (_wait_listening(grpc_port, 20.0) and _wait_listening(web_port, 20.0)):
             self.close()
@@ -201,23 +219,22 @@ class RerunObserver(Observer):
         rec.log("world/sphere/center", rr.Points3D([c], radii=0.03, colors=[(120, 120, 120)]), static=True)
         rec.log("world/bbox", rr.Boxes3D(mins=[e.bbox[0]], sizes=[e.bbox[1] - e.bbox[0]], colors=[(90, 90, 90)]),
                 static=True)
-        for path, plane, color in (("world/mirror_plane", e.plane, (255, 150, 0)),
-                                   ("world/true_plane", e.true_plane, (150, 60, 200))):
+        # The mirror plane used: a translucent square with its normal; the true plane: an outline.
+        for path, plane, color, filled in (("world/mirror_plane", e.plane, COLORS["mirror_init"], True),
+                                           ("world/true_plane", e.true_plane, COLORS["mirror_true"], False)):
             if plane is None:
                 continue
-            quad = _plane_quad(plane, 0.8 * r)
-            rec.log(
-                path,
-                rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]],
-                          vertex_colors=[(*color, 70)] * 4),
-                static=True,
-            )
-            rec.log(f"{path}/normal", rr.Arrows3D(origins=[plane.point], vectors=[0.5 * r * plane.normal],
-                                                  colors=[color], radii=0.01), static=True)
+            quad = _plane_quad(plane, 0.6 * r)
+            if filled:
+                rec.log(path, rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]],
+                                        albedo_factor=(*color, 60)), static=True)
+            rec.log(f"{path}/outline", rr.LineStrips3D([np.vstack([quad, quad[:1]])], colors=[color], radii=0.006),
+                    static=True)
+            rec.log(f"{path}/normal", rr.Arrows3D(origins=[plane.point], vectors=[0.4 * r * plane.normal],
+                                                  colors=[color], radii=0.012), static=True)
         self._frustum_scale = 0.12 * r
-        for info in e.cameras:
-            self._log_camera(f"world/cameras/{info.kind}/{entity_name(info.camera.name)}", info.camera,
-                             COLORS[info.kind], info.image)
+        for info, path in zip(e.cameras, camera_paths(e.cameras)):
+            self._log_camera(path, info.camera, COLORS[info.kind], info.image)
             if info.kind == "test" and info.image is not None:
                 self._log_gt(f"views/test/{entity_name(info.camera.name)}/gt", info.image)
             if info.kind == "mirror_init" and info.image is not None:
@@ -247,6 +264,7 @@ class RerunObserver(Observer):
                     pose_static: bool = True) -> None:
         rec = self.rec
         rec.log(path, rr.Transform3D(translation=cam.c2w[:3, 3], mat3x3=cam.c2w[:3, :3]), static=pose_static)
+        rec.log(path, rr.TransformAxes3D(axis_length=0.0), static=True)  # frustums only, no axis triads
         rec.log(
             path,
             rr.Pinhole(
@@ -300,11 +318,6 @@ class RerunObserver(Observer):
             rec.set_time(STEP, sequence=event.step)
             for k, v in event.scalars.items():
                 rec.log(f"curves/test/{entity_name(k)}", rr.Scalars(float(v)))
-            if self._beta2_range is None:
-                maps = [v.beta2 for v in event.mirror_views if v.beta2 is not None]
-                if maps:
-                    hi = max(float(np.percentile(m, 99)) for m in maps)
-                    self._beta2_range = (0.0, _nice_ceil(2.0 * hi))
             for v in event.test_views:
                 self._log_view(f"views/test/{entity_name(v.name)}", v, gt_name="gt")
             for v in event.mirror_views:
@@ -321,8 +334,8 @@ class RerunObserver(Observer):
             self._log_gt(f"{base}/{gt_name}", v.gt)
             err = np.abs(np.asarray(v.rgb, np.float32) - np.asarray(v.gt, np.float32)).mean(-1)
             rec.log(f"{base}/error", self._map(err, "inferno", 0.0, self.opts.error_max))
-        if v.beta2 is not None and self._beta2_range is not None:
-            rec.log(f"{base}/beta2", self._map(v.beta2, "viridis", *self._beta2_range))
+        if v.beta2 is not None:
+            rec.log(f"{base}/beta2", self._map(v.beta2, "viridis", *self.opts.beta2_range))
 
     def on_end(self, event: EndEvent) -> None:
         with self._lock:
@@ -350,11 +363,12 @@ class RerunObserver(Observer):
         except Exception:
             pass
         if self._server is not None and self._server.poll() is None:
-            self._server.terminate()
+            os.killpg(self._server.pid, signal.SIGTERM)
             try:
                 self._server.wait(timeout=5)
             except subprocess.TimeoutExpired:
-                self._server.kill()
+                os.killpg(self._server.pid, signal.SIGKILL)
+                self._server.wait(timeout=5)
 
 
 def make_rerun_observer(cfg: TrainConfig, run_dir: Path, **overrides) -> RerunObserver:

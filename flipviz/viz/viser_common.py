@@ -59,8 +59,10 @@ def plane_from_pose(wxyz, position) -> Plane:
 
 def plane_to_arg(plane: Plane) -> str:
     """The `--mirror-plane` string 'px,py,pz;nx,ny,nz' of a plane."""
-    p, n = plane.point, plane.normal
-    return ",".join(f"{v:.5g}" for v in p) + ";" + ",".join(f"{v:.5g}" for v in n)
+    def fmt(v: np.ndarray) -> str:
+        return ",".join(f"{round(float(x), 5) + 0.0:g}" for x in v)  # + 0.0 turns -0 into 0
+
+    return fmt(plane.point) + ";" + fmt(plane.normal)
 
 
 def to_uint8(img: np.ndarray) -> np.ndarray:

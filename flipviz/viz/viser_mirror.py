@@ -119,6 +119,8 @@ class MirrorLesson:
 
     # ---- the plane --------------------------------------------------------------------------
     def _on_gizmo(self, ev: viser.TransformControlsEvent) -> None:
+        if ev.phase == "start":
+            return
         self.moved = True
         self._apply_plane(plane_from_pose(ev.target.wxyz, ev.target.position))
 

@@ -51,8 +51,9 @@ class NovelCameras:
         with self._lock:
             name = f"cam{len(self.gizmos)}"
             if client is not None:
-                try:
+                try:  # your view, a third of the way to what you look at (so that you see the gizmo)
                     wxyz, pos = client.camera.wxyz.copy(), client.camera.position.copy()
+                    pos = pos + (client.camera.look_at - pos) / 3.0
                 except AssertionError:
                     client = None
             if client is None:

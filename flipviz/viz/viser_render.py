@@ -137,13 +137,14 @@ class ViewportRenderer:
         self.settle_s, self.refresh_s = float(settle_s), float(refresh_s)
         self.clients: dict[int, ClientView] = {}
         self._lock = threading.Lock()
+        self._gui_lock = threading.Lock()
 
     def add_client(self, client: viser.ClientHandle, folder=None) -> ClientView:
         view = ClientView(client)
         with self._lock:
             self.clients[client.client_id] = view
         ctx = folder if folder is not None else _nullcontext()
-        with ctx:
+        with self._gui_lock, ctx:  # a container is entered by one thread at a time
             cb = client.gui.add_checkbox("Render my view", True, hint="Background = the current model seen from your camera")
             dd = client.gui.add_dropdown("My view shows", OUTPUTS, initial_value="RGB")
         view.gui = [cb, dd]
@@ -166,6 +167,9 @@ class ViewportRenderer:
             view.last_move = time.monotonic()
             self.request(client.client_id)
 
+        # The first camera message arrived before this (it is what makes a client 'connected'),
+        # possibly before the callback above existed: render the initial view now.
+        self.request(client.client_id)
         return view
 
     def remove_client(self, client_id: int) -> None:

@@ -66,7 +66,7 @@ class RunScene:
             self.setup = setup
             scene = self.server.scene
             r = float(setup.sphere_radius)
-            self.scale = 0.09 * r
+            self.scale = 0.07 * r
             scene.add_frame("/run", show_axes=False)
             self.groups = {g: scene.add_frame(f"/run/{g}", show_axes=False, visible=self.visible[g]) for g in GROUPS}
             scene.add_icosphere(

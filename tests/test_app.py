@@ -1,0 +1,275 @@
+"""The browser app, end to end: the real app (real trainer, tiny chair scene) driven by real
+websocket clients speaking viser's protocol (flipviz.viz.viser_wsclient)."""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import tyro
+
+from flipviz.data.dataset import Plane
+from flipviz.geometry import mirror_cameras_for_plane
+from flipviz.geometry.sphere import Sphere
+from flipviz.viz.viser_app import App, AppConfig, train_config
+from flipviz.viz.viser_common import (
+    c2w_from_viser,
+    camera_from_viser,
+    plane_from_pose,
+    plane_to_arg,
+    plane_wxyz,
+    psnr,
+    to_viser_pose,
+    upscale,
+    visualize_output,
+)
+from flipviz.viz.viser_wsclient import ViserTestClient
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    cfg = AppConfig(
+        scene="chair", res=32, steps=100_000, batch_rays=256, no_rrd=True, port=0, log_every=2, images_every=40,
+        checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("run"), render_duty=0.5, view_width=48,
+    )  # fmt: skip
+    a = App(cfg).start()
+    deadline = time.monotonic() + 40
+    while (a.setup is None or a.step < 2) and time.monotonic() < deadline:
+        assert a.status != "error", a.message
+        time.sleep(0.1)
+    assert a.setup is not None and a.step >= 2, f"training did not start: {a.status} {a.message}"
+    yield a
+    a.stop()
+    assert a.trainer is None and not a._thread.is_alive()
+
+
+def run(coro):
+    return asyncio.run(asyncio.wait_for(coro, timeout=45))
+
+
+def url(app: App) -> str:
+    return f"ws://127.0.0.1:{app.port}"
+
+
+def jpeg(data: bytes) -> np.ndarray:
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    assert img is not None and img.ndim == 3
+    return img
+
+
+def test_pose_conversion_roundtrip():
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        c2w = c2w_from_viser(q, rng.normal(size=3))
+        wxyz, pos = to_viser_pose(c2w)
+        assert np.allclose(c2w_from_viser(wxyz, pos), c2w)
+        # OpenCV +z (viser's forward) is OpenGL -z (flipviz's forward)
+        R_cv = c2w @ np.diag([1.0, -1.0, -1.0, 1.0])
+        assert np.allclose(R_cv[:3, 2], -c2w[:3, 2])
+    cam = camera_from_viser((1.0, 0.0, 0.0, 0.0), (0, 0, 0), fov_y=np.pi / 2, width=40, height=20)
+    assert cam.height == 20 and np.isclose(cam.focal, 10.0) and np.allclose(cam.c2w[:3, 2], [0, 0, -1])
+
+
+def test_plane_gizmo_roundtrip():
+    plane = Plane(np.array([0.1, -0.2, 0.3]), np.array([1.0, 2.0, 0.5]))
+    back = plane_from_pose(plane_wxyz(plane.normal), plane.point)
+    assert np.allclose(back.normal, plane.normal) and np.allclose(back.point, plane.point)
+    assert plane_to_arg(Plane(np.zeros(3), np.array([0, 1.0, 0]))) == "0,0,0;0,1,0"
+
+
+def test_cli_config_and_help():
+    cfg = tyro.cli(AppConfig, args="--scene chair --method flip --config 3 --port 8123 --host 127.0.0.1".split())
+    assert (cfg.scene, cfg.method, cfg.config, cfg.port, cfg.host) == ("chair", "flip", 3, 8123, "127.0.0.1")
+    assert type(train_config(cfg)).__name__ == "TrainConfig" and train_config(cfg).config == 3
+    out = subprocess.run(
+        [sys.executable, "app.py", "--scene", "chair", "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 0 and "--port" in out.stdout and "--method" in out.stdout
+
+
+def test_scene_and_own_view(app):
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            frustum = await c.wait_for(lambda m: m["type"] == "CameraFrustumMessage" and m["name"].startswith("/run/inputs/"))
+            assert frustum["props"]["_image_data"]  # input thumbnails on the frustums
+            await c.wait_for(lambda m: m["type"] == "IcosphereMessage" and m["name"] == "/run/sphere/mesh")
+            await c.wait_for(lambda m: m["type"] == "TransformControlsMessage" and m["name"] == "/plane")
+            bg = await c.wait_for(lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"])
+            img = jpeg(bg["rgb_data"])
+            assert img.shape[1] in (app.cfg.view_width, app.views.low_width)  # the render of our own camera
+
+    run(go())
+
+
+def test_novel_camera_render(app):
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_gui("Add novel camera")
+            await c.click("Add novel camera")
+            g = await c.wait_for(lambda m: m["type"] == "TransformControlsMessage" and m["name"].startswith("/novel/"))
+            name = g["name"]
+            # drag it: a camera at (3, -3, 2) looking at the origin (OpenCV frame, as viser sends)
+            from flipviz.viz.viser_wsclient import wxyz_look_at
+
+            await c.move_gizmo(name, (3.0, -3.0, 2.0), wxyz_look_at(np.array([3.0, -3, 2]), np.zeros(3)))
+            await asyncio.sleep(0.2)
+            gizmo = app.novel.gizmos[name.split("/")[-1]]
+            assert np.allclose(gizmo.position, (3.0, -3.0, 2.0))
+            n = len(c.messages)
+            await c.click("Render novel view")
+            uuid = c.gui["Novel render"]["uuid"]
+            m = await c.wait_for(
+                lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid and m["updates"].get("_data"), start=n
+            )
+            img = jpeg(m["updates"]["_data"])[..., ::-1]
+            # it is the model seen from the dragged camera (JPEG-compressed; training moves on meanwhile)
+            cam = app.novel.camera(name.split("/")[-1])
+            assert np.allclose(cam.center, (3.0, -3.0, 2.0)) and np.allclose(-cam.c2w[:3, 2], -cam.center / np.linalg.norm(cam.center), atol=1e-6)
+            expected = upscale(visualize_output(app.render(cam), "RGB"), 192)
+            assert img.shape == expected.shape and np.abs(img.astype(float) - expected).mean() < 12.0
+            await c.wait_for(
+                lambda m: m["type"] == "SceneNodeUpdateMessage" and m["name"] == f"{name}/frustum"
+                and m["updates"].get("_image_data"), start=n,
+            )  # fmt: skip
+
+    run(go())
+
+
+def test_pause_stops_steps_and_resume(app):
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_gui("Pause")
+            await c.click("Pause")
+            await c.wait_for(
+                lambda m: m["type"] == "GuiUpdateMessage" and "status: **paused**" in str(m["updates"].get("_markdown", ""))
+            )
+            await asyncio.sleep(1.0)  # a step already under way may still finish
+            s0 = app.trainer.step
+            await asyncio.sleep(1.5)
+            assert app.trainer.paused and app.trainer.step == s0
+            await c.click("Resume")
+            t = time.monotonic()
+            while app.trainer.step == s0 and time.monotonic() - t < 20:
+                await asyncio.sleep(0.1)
+            assert app.trainer.step > s0 and not app.trainer.paused
+
+    run(go())
+
+
+def test_moving_the_plane_moves_the_mirrors(app):
+    setup = app.setup
+    inputs = [c.camera for c in setup.cameras if c.kind == "input"]
+    sphere = Sphere(setup.sphere_center, setup.sphere_radius)
+    new_plane = Plane(setup.sphere_center, np.array([0.3, 1.0, 0.0]))
+    expected = mirror_cameras_for_plane(inputs, new_plane, sphere)
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_for(lambda m: m["type"] == "TransformControlsMessage" and m["name"] == "/plane")
+            n = len(c.messages)
+            await c.move_gizmo("/plane", tuple(new_plane.point), tuple(plane_wxyz(new_plane.normal)))
+            for k, cam in enumerate(expected):
+                # the preview frustum k ends up at the paper's initial mirrored pose for the new plane
+                await c.wait_for(
+                    lambda m: m["type"] == "SetPositionMessage" and m["name"] == f"/preview/{k}"
+                    and np.allclose(m["position"], cam.center, atol=1e-4), start=n, timeout=10,
+                )  # fmt: skip
+            assert not np.allclose(expected[0].center, app.setup.cameras[len(inputs)].camera.center, atol=1e-3)
+            await c.wait_gui("Restart with this plane")
+
+    run(go())
+    assert app.mirror.moved and np.allclose(app.mirror.plane.normal, new_plane.normal)
+
+
+def test_mirror_consistency_scores_and_outputs(app):
+    """Score mirrors: PSNR of the (paused) model from each mirrored camera vs its flipped image."""
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_gui("Score mirrors")
+            await c.click("Pause")
+            await asyncio.sleep(1.0)
+            n = len(c.messages)
+            await c.click("Score mirrors")
+            uuid = c.gui["Restart with this plane"]["uuid"]  # noqa: F841 (the lesson's GUI is there)
+            m = await c.wait_for(
+                lambda m: m["type"] == "GuiUpdateMessage" and "**mean**" in str(m["updates"].get("_markdown", "")),
+                start=n,
+            )
+            last_col = [float(row.split("|")[-2].split()[0]) for row in m["updates"]["_markdown"].split("\n")
+                        if "_flip" in row]  # fmt: skip
+            cams = app.mirror.preview_cams if app.mirror.moved else None
+            assert cams is not None and len(last_col) == len(cams) == 8
+            for cam, gt, got in zip(cams, app.mirror.flipped, last_col):
+                rgb = app.render(cam, outputs=("rgb",))["rgb"]
+                assert abs(psnr(rgb, gt) - got) < 0.051  # the table shows 1 decimal
+            out = app.render(cams[0])
+            for which in ("RGB", "depth", "opacity", "beta^2"):
+                img = visualize_output(out, which)
+                assert img.dtype == np.uint8 and img.shape == (cams[0].height, cams[0].width, 3)
+            await c.click("Resume")
+            await asyncio.sleep(0.3)
+
+    run(go())
+    assert not app.trainer.paused
+
+
+def test_two_tabs_and_snap_to_view(app):
+    async def go():
+        async with ViserTestClient(url(app)) as a, ViserTestClient(url(app)) as b:
+            await a.send_camera((4.0, -4.0, 3.0))
+            await b.send_camera((-4.0, 4.0, 3.0))
+            for c in (a, b):
+                await c.wait_for(lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"], timeout=30)
+            ids.update(app.views.clients)
+            assert len(ids - before) == 2  # one per-client state per tab
+            await a.wait_gui("View")
+            key = next(k for k in app.snap.views if k.startswith("test"))
+            await a.set_value("View", key)
+            await asyncio.sleep(0.2)
+            n = len(a.messages)
+            await a.click("Snap to view")
+            moved = lambda m: m["type"] == "SetCameraPositionMessage" and not m.get("initial")  # noqa: E731
+            m = await a.wait_for(moved, start=n)
+            assert np.allclose(m["position"], app.snap.views[key][2].center)
+            assert not any(moved(m) for m in b.messages)  # only the clicker's camera moves
+            uuid = a.gui["|error|"]["uuid"]
+            await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid, start=n)
+        await asyncio.sleep(0.5)
+
+    before, ids = set(app.views.clients), set()
+    run(go())
+    assert (ids - before).isdisjoint(app.views.clients)  # both tabs' state was dropped on disconnect
+
+
+def test_restart_with_another_method(app):
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_gui("Restart training")
+            await c.set_value("Method", "bl")
+            await asyncio.sleep(0.3)
+            await c.click("Restart training")
+            t = time.monotonic()
+            while not (app.setup is not None and app.setup.method == "bl" and app.step > 0):
+                assert time.monotonic() - t < 40, f"no restart: {app.status} {app.message}"
+                await asyncio.sleep(0.2)
+
+    old = app.setup
+    run(go())
+    assert app.setup is not old and app.cfg.method == "bl" and app.restarts == 1

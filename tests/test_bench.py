@@ -1,0 +1,242 @@
+"""`flipviz bench`: planning, resuming after a kill, failed runs, reports, the Ray executor."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from flipviz.bench import BenchConfig, plan, run_bench
+from flipviz.bench.config import parse_configs, parse_methods
+from flipviz.bench.paper_numbers import METHOD_ORDER, TABLE2, TABLE3
+from flipviz.bench.runner import resolve_scene
+from flipviz.bench.tables import render_markdown
+from flipviz.data.dataset import DatasetError
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+TINY = ["--methods", "bl,flip+u", "--configs", "1,2", "--res", "24", "--steps", "30", "--batch-rays", "256",
+        "--cpus-per-run", "1", "--workers", "2"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("cache")
+
+
+def _broken_scene(root: Path) -> None:
+    """A Blender folder whose orbit lacks the protocol's views: its runs must fail, not the bench."""
+    (root / "broken").mkdir(parents=True)
+    frame = {"file_path": "./test/r_0", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}
+    (root / "broken" / "transforms_test.json").write_text(json.dumps({"camera_angle_x": 0.69, "frames": [frame]}))
+
+
+def _results(out: Path) -> dict[str, dict]:
+    return {p.parent.name: json.loads(p.read_text()) for p in (out / "runs").glob("*/result.json")}
+
+
+def _check_outputs(out: Path, n_runs: int) -> list[dict]:
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert len(rows) == n_runs
+    data = json.loads((out / "results.json").read_text())
+    assert len(data["runs"]) == n_runs and data["bench"]["steps"] == 30
+    table = (out / "table.md").read_text()
+    assert "Table III" in table and "PSNR B/L" in table and "PSNR Flip+U" in table and "**Mean**" in table
+    import matplotlib.pyplot as plt
+
+    chart = plt.imread(str(out / "psnr_chart.png"))
+    assert chart.ndim == 3 and chart.shape[0] > 100
+    grid = plt.imread(str(out / "grid_chair.png"))
+    assert grid.ndim == 3 and grid.shape[0] > 100
+    return rows
+
+
+def _wait_for(cond, p: subprocess.Popen, what: str, timeout: float = 180.0):
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        got = cond()
+        if got:
+            return got
+        assert p.poll() is None, f"the bench ended before {what}:\n" + p.stdout.read().decode()
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def test_bench_resumes_after_kill_and_records_failures(tmp_path: Path, cache: Path) -> None:
+    out = tmp_path / "bench"
+    _broken_scene(tmp_path / "data")
+    env = dict(os.environ, FLIPVIZ_CACHE=str(cache), PYTHONPATH=str(ROOT))
+    cmd = [sys.executable, "-m", "flipviz.bench", "--scenes", "chair,broken", "--data-root", str(tmp_path / "data"),
+           "--out", str(out), *TINY]  # fmt: skip
+    p = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        # A worker process dies under a run (as if out of memory): the run is failed, the bench goes on.
+        started = _wait_for(lambda: sorted((out / "runs").glob("*/started.json")), p, "a run started")[0]
+        victim = started.parent.name
+        os.kill(json.loads(started.read_text())["pid"], signal.SIGKILL)
+        # Then the whole bench is killed as soon as one run has finished.
+        _wait_for(lambda: any(r["status"] == "ok" for r in _results(out).values()), p, "a run finished")
+    finally:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+    first = _results(out)
+    assert first[victim]["status"] == "failed" and "died" in first[victim]["error"], first[victim]
+    done = {k: v for k, v in first.items() if v["status"] == "ok"}
+    assert 1 <= len(done) < 4
+    mtimes = {k: (out / "runs" / k / "result.json").stat().st_mtime_ns for k in done}
+
+    r = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    log = r.stdout + r.stderr
+    final = _results(out)
+    for key, res in done.items():  # finished runs were skipped, not redone
+        assert f"skipped {key}" in log
+        assert final[key]["run_id"] == res["run_id"]
+        assert (out / "runs" / key / "result.json").stat().st_mtime_ns == mtimes[key]
+    assert f"{len(done)} skipped" in log
+    assert final[victim]["status"] == "ok" and final[victim]["run_id"] != first[victim]["run_id"]  # retried
+    assert len(final) == 8
+    status = {k: v["status"] for k, v in final.items()}
+    assert sorted(status.values()) == ["failed"] * 4 + ["ok"] * 4, status
+    for v in final.values():
+        if v["scene"] == "broken":  # a one-line error, the rest of the bench went on
+            assert v["error"] and "\n" not in v["error"]
+        else:
+            assert 0 < v["psnr"] < 60 and 0 < v["ssim"] <= 1 and v["steps"] == 30
+            assert v["versions"]["torch"] and v["versions"]["numpy"] and v["versions"]["flipviz"]
+            assert len(list((out / "runs" / v["key"] / "test_renders").glob("*_gt.png"))) == 8
+    rows = _check_outputs(out, 8)
+    assert {r["status"] for r in rows if r["scene"] == "broken"} == {"failed"}
+    assert "## Failed runs" in (out / "table.md").read_text()
+
+
+def test_bench_on_ray(tmp_path: Path, cache: Path, monkeypatch) -> None:
+    ray = pytest.importorskip("ray")
+    monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        cfg = BenchConfig(scenes="chair", methods="bl,flip+u", configs="1", res=24, steps=30, batch_rays=256,
+                          out=tmp_path / "ray", executor="ray")  # fmt: skip
+        out = run_bench(cfg)
+    finally:
+        ray.shutdown()
+    res = _results(out)
+    assert len(res) == 2 and all(v["status"] == "ok" for v in res.values()), res
+    assert {v["method"] for v in res.values()} == {"bl", "flip+u"}
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert len(rows) == 2 and all(float(r["psnr"]) > 0 for r in rows)
+    assert (out / "grid_chair.png").is_file() and (out / "psnr_chart.png").is_file()
+
+
+# ------------------------------------------------------------------------- no training
+
+
+def test_plan_keys_and_ablation(tmp_path: Path) -> None:
+    cfg = BenchConfig(scenes="chair,mug", methods="all", configs="1-8", steps=100, res=32)
+    specs = plan(cfg)
+    assert len(specs) == 2 * 8 * 5
+    keys = {s.key(cfg) for s in specs}
+    assert len(keys) == len(specs)
+    # Table II adds Flip without BA and Flip+U without BA; (BA, no U) is Flip, (BA, U) is Flip+U.
+    abl = plan(BenchConfig(scenes="chair", methods="all", configs="1-8", ablation=True))
+    assert len(abl) == 8 * 7
+    assert {(s.method, s.ba) for s in abl if s.method.startswith("flip")} == {
+        ("flip", True), ("flip", False), ("flip+u", True), ("flip+u", False)
+    }
+    # Keys cover everything that changes the result (steps, res, seed, data path) ...
+    s = specs[0]
+    for change in (dict(steps=101), dict(res=33), dict(seed=1), dict(batch_rays=128), dict(field="nerf")):
+        other = BenchConfig(**{**cfg.__dict__, **change})
+        assert s.key(other) != s.key(cfg), change
+    # ... and nothing that does not (output folder, workers, executor).
+    same = BenchConfig(**{**cfg.__dict__, "out": tmp_path, "workers": 2, "executor": "ray"})
+    assert s.key(same) == s.key(cfg)
+
+
+def test_parsing_and_scene_errors(tmp_path: Path) -> None:
+    assert parse_configs("1-8") == list(range(1, 9)) and parse_configs("1,3-4") == [1, 3, 4]
+    assert parse_methods("all") == list(METHOD_ORDER) and parse_methods("flip+u,bl") == ["flip+u", "bl"]
+    for bad in ("0-3", "9", "a"):
+        with pytest.raises(ValueError):
+            parse_configs(bad)
+    with pytest.raises(ValueError, match="unknown method"):
+        parse_methods("flip,nope")
+    assert resolve_scene("chair", None) == ("chair", None)
+    with pytest.raises(DatasetError, match="--data-root"):
+        resolve_scene("lego", None)
+    with pytest.raises(DatasetError, match="transforms_test.json"):
+        resolve_scene("lego", tmp_path)
+    _broken_scene(tmp_path)
+    assert resolve_scene("broken", tmp_path) == ("broken", str((tmp_path / "broken").resolve()))
+
+
+def test_table_shows_paper_numbers_for_nerf_synthetic_scenes() -> None:
+    def row(scene, data, method, config, psnr):
+        return {"key": f"{scene}{method}{config}", "scene": scene, "data": data, "method": method, "config": config,
+                "ba": method.startswith("flip"), "uncertainty": method.endswith("+u"), "default_flags": True,
+                "status": "ok", "psnr": psnr, "ssim": 0.5, "lpips": "unavailable", "train_seconds": 10.0}  # fmt: skip
+
+    rows = [row("lego", "/d/lego", "bl", 1, 10.0), row("lego", "/d/lego", "bl", 2, 12.0),
+            row("lego", "/d/lego", "flip+u", 1, 15.0), row("chair", "", "bl", 1, 20.0)]  # fmt: skip
+    md = render_markdown(rows, BenchConfig(scenes="lego,chair", methods="bl,flip+u", configs="1,2"))
+    lego = next(ln for ln in md.splitlines() if ln.startswith("| lego"))
+    chair = next(ln for ln in md.splitlines() if ln.startswith("| chair"))
+    assert "11.00 (11.57)" in lego  # mean of configurations, paper beside it
+    assert "15.00 †1/2 (17.79)" in lego  # one of two configurations finished
+    assert "(" not in chair.replace("†1/2", "")  # built-in chair: no paper numbers
+    mean = next(ln for ln in md.splitlines() if ln.startswith("| **Mean**"))
+    assert "15.50" in mean  # mean over scenes of B/L: (11 + 20) / 2
+
+
+def test_paper_numbers_match_protocol_and_tex() -> None:
+    protocol, tex = SHARED / "PROTOCOL.md", SHARED / "paper" / "just_flip.tex"
+    if not protocol.is_file() or not tex.is_file():
+        pytest.skip("../shared (protocol and paper) not present in this checkout")
+    names = {"Chairs": "Chairs", "Lego": "Lego", "Materials": "Materials", "Ship": "Ship", "Drum": "Drum",
+             "Ficus": "Ficus", "Hotdog": "Hotdog", "Mic": "Mic", "Mean": "Mean"}  # fmt: skip
+    n = 0
+    for line in protocol.read_text().splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if cells and cells[0] in names and len(cells) == 6:
+            assert [TABLE3["psnr"][cells[0]][m] for m in METHOD_ORDER] == [float(c) for c in cells[1:]]
+            n += 1
+    assert n == 9
+    n = 0
+    for line in tex.read_text().splitlines():
+        line = re.sub(r"\\textbf\{([^}]*)\}", r"\1", line.split("\\\\")[0])  # drop bold and the row end
+        cells = [c.strip() for c in line.split("&")]
+        if len(cells) == 16 and cells[0] in names:
+            vals = [float(c) for c in cells[1:]]
+            for k, metric in enumerate(("psnr", "ssim", "lpips")):
+                assert [TABLE3[metric][cells[0]][m] for m in METHOD_ORDER] == vals[5 * k : 5 * k + 5]
+            n += 1
+        if len(cells) == 5 and cells[0] in ("-", "\\checkmark") and cells[1] in ("-", "\\checkmark"):
+            key = (cells[0] == "\\checkmark", cells[1] == "\\checkmark")
+            assert [TABLE2[key][m] for m in ("psnr", "ssim", "lpips")] == [float(c) for c in cells[2:]]
+            n += 1
+    assert n == 9 + 4
+
+
+def test_ablation_table_rows() -> None:
+    def row(method, ba, u, config, psnr):
+        return {"key": f"{method}{ba}{config}", "scene": "mug", "data": "", "method": method, "config": config,
+                "ba": ba, "uncertainty": u, "default_flags": ba, "status": "ok", "psnr": psnr, "ssim": 0.5,
+                "lpips": 0.2, "train_seconds": 1.0}  # fmt: skip
+
+    rows = [row("flip", False, False, 1, 10.0), row("flip", True, False, 1, 11.0),
+            row("flip+u", False, True, 1, 12.0), row("flip+u", True, True, 1, 13.0),
+            row("flip+u", True, True, 2, 15.0), {**row("flip", False, False, 2, 99.0), "status": "failed"}]  # fmt: skip
+    md = render_markdown(rows, BenchConfig(scenes="mug", methods="flip,flip+u", configs="1,2", ablation=True))
+    table2 = md.split("## Table II:")[1].split("##")[0]
+    lines = [ln for ln in table2.splitlines() if ln.startswith("| ") and ("✓" in ln or "| - | - |" in ln)]
+    assert [ln.split(" | ")[:3] for ln in lines] == [["| -", "-", "10.00"], ["| ✓", "-", "11.00"],
+                                                     ["| -", "✓", "12.00"], ["| ✓", "✓", "14.00"]]  # fmt: skip
+    assert "16.636" in lines[0] and "17.620" in lines[3]  # the paper's Table II beside ours

@@ -1,0 +1,221 @@
+"""The Rerun recording of a real (tiny) training run, read back from the .rrd file."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+import urllib.request
+import warnings
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+from flipviz.training.config import TrainConfig
+from flipviz.training.events import ImagesEvent, Observer, SetupEvent, StepEvent
+from flipviz.training.trainer import Trainer
+from flipviz.viz.rerun_blueprint import entity_name
+from flipviz.viz.rerun_observer import camera_paths, make_rerun_observer
+
+STEPS, LOG_EVERY, IMAGES_EVERY = 10, 2, 5
+REPO = Path(__file__).resolve().parents[1]
+
+
+class Keep(Observer):
+    """Keeps the events the trainer emitted, to compare with what the recording holds."""
+
+    def __init__(self) -> None:
+        self.setup: SetupEvent | None = None
+        self.steps: list[StepEvent] = []
+        self.images: list[ImagesEvent] = []
+
+    def on_setup(self, e: SetupEvent) -> None:
+        self.setup = e
+
+    def on_step(self, e: StepEvent) -> None:
+        self.steps.append(e)
+
+    def on_images(self, e: ImagesEvent) -> None:
+        self.images.append(e)
+
+
+def read_rrd(path: Path) -> dict[str, list]:
+    """entity path -> its record batches (static and temporal), from the file alone."""
+    out: dict[str, list] = defaultdict(list)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a killed recording has no footer: RrdReader warns, then scans
+        for chunk in RrdReader(path).stream():
+            out[chunk.entity_path].append(chunk.to_record_batch())
+    return out
+
+
+def column(batches: list, name: str) -> list:
+    """All rows of one component; each row is the list of its instances."""
+    return [v for b in batches if name in b.schema.names for v in b.column(name).to_pylist()]
+
+
+def first(batches: list, name: str):
+    """The first instance of the first row of a component."""
+    return column(batches, name)[0][0]
+
+
+def rows_by_step(batches: list, name: str) -> dict[int, object]:
+    return {s: v for b in batches if name in b.schema.names
+            for s, v in zip(b.column("step").to_pylist(), b.column(name).to_pylist())}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A real Flip+U run on the built-in chair, recorded to a file and served to a local web viewer."""
+    out = tmp_path_factory.mktemp("rerun") / "run"
+    cfg = TrainConfig(scene="chair", res=32, steps=STEPS, log_every=LOG_EVERY, images_every=IMAGES_EVERY,
+                      batch_rays=256, out=out, checkpoint_every=0, rerun_serve=True)
+    trainer = Trainer(cfg)
+    obs = make_rerun_observer(cfg, trainer.run_dir)
+    keep = Keep()
+    trainer.add_observer(obs)
+    trainer.add_observer(keep)
+    try:
+        trainer.run()
+        served = _check_served(obs)
+    finally:
+        obs.close()
+    path = trainer.run_dir / "recording.rrd"
+    return {"keep": keep, "rrd": read_rrd(path), "path": path, "served": served}
+
+
+def _check_served(obs) -> dict:
+    """While the viewer runs: its URL, what the page returns, which addresses its server listens on."""
+    html = urllib.request.urlopen(obs.viewer_url, timeout=10).read()
+    listen = {c.laddr.ip for c in psutil.Process(obs._server.pid).net_connections("tcp") if c.status == "LISTEN"}
+    return {"url": obs.viewer_url, "html": html, "listen": listen}
+
+
+def test_static_scene_entities(run):
+    rrd, setup = run["rrd"], run["keep"].setup
+    assert first(rrd["/world"], "ViewCoordinates:xyz") == rr.components.ViewCoordinatesBatch(
+        rr.ViewCoordinates.RIGHT_HAND_Z_UP).as_arrow_array().to_pylist()[0]
+    for e in ("/world/sphere", "/world/mirror_plane", "/world/mirror_plane/normal", "/world/mirror_plane/outline",
+              "/world/bbox", "/run"):
+        assert e in rrd, e
+    assert first(rrd["/world/sphere"], "Ellipsoids3D:half_sizes") == pytest.approx([setup.sphere_radius] * 3)
+    rub = rr.components.ViewCoordinatesBatch(rr.ViewCoordinates.RUB).as_arrow_array().to_pylist()[0]
+    kinds = defaultdict(int)
+    for info, path in zip(setup.cameras, camera_paths(setup.cameras)):
+        kinds[info.kind] += 1
+        b = rrd["/" + path]
+        assert first(b, "Transform3D:translation") == pytest.approx(info.camera.center, abs=1e-5)
+        assert first(b, "Pinhole:camera_xyz") == rub  # OpenGL cameras: x right, y up, looking along -z
+        assert bool(column(b, "EncodedImage:blob")) == (info.image is not None)
+    assert kinds["input"] == kinds["test"] == kinds["mirror_init"] == 8
+    assert ("/world/true_plane/outline" in rrd) == (setup.true_plane is not None)
+
+
+def test_mirrored_cameras_and_steps(run):
+    rrd, keep = run["rrd"], run["keep"]
+    mirrors = [entity_name(c.camera.name) for c in keep.setup.cameras if c.kind == "mirror_init"]
+    refined = sorted(p for p in rrd if p.startswith("/world/cameras/mirror/"))
+    assert refined == sorted(f"/world/cameras/mirror/{m}" for m in mirrors)
+    logged = [e.step for e in keep.steps]
+    assert logged == list(range(LOG_EVERY, STEPS + 1, LOG_EVERY))
+    assert sorted(rows_by_step(rrd["/curves/train/loss"], "Scalars:scalars")) == logged
+    for key in ("psnr", "lr_field", "lr_pose"):
+        assert f"/curves/{'lr' if key.startswith('lr') else 'train'}/{key}" in rrd
+    last = keep.steps[-1]
+    for i, m in enumerate(mirrors):
+        poses = rows_by_step(rrd[f"/world/cameras/mirror/{m}"], "Transform3D:translation")
+        assert sorted(poses) == [0, *logged]  # the initial pose at step 0, then one per StepEvent
+        assert poses[last.step][0] == pytest.approx(last.mirror_c2w[i, :3, 3], abs=1e-5)
+    rot = rows_by_step(rrd["/curves/mirror/rot_change_deg"], "Scalars:scalars")
+    assert rot[last.step] == pytest.approx(last.mirror_rot_change_deg, abs=1e-6)
+    assert "/curves/mirror/rot_err_deg" in rrd and "/curves/test/test_psnr" in rrd
+
+
+def test_beta2_frames_equal_the_model_maps(run):
+    rrd, keep = run["rrd"], run["keep"]
+    assert [e.step for e in keep.images] == [IMAGES_EVERY, STEPS]  # periodic, then the final render
+    ranges = set()
+    for ev in keep.images:
+        for v in ev.mirror_views:
+            b = rrd[f"/views/mirror/{entity_name(v.name)}/beta2"]
+            buf, fmt, rng = (rows_by_step(b, c)[ev.step] for c in ("DepthImage:buffer", "DepthImage:format",
+                                                                   "DepthImage:depth_range"))
+            fmt = fmt[0]
+            got = np.frombuffer(bytes(buf[0]), dtype=np.float16).reshape(fmt["height"], fmt["width"])
+            np.testing.assert_allclose(got.astype(np.float32), v.beta2, rtol=1e-3, atol=1e-7)  # float16 storage
+            ranges.add(tuple(rng[0]))
+        for v in ev.test_views:
+            for part in ("render", "error", "depth", "opacity"):
+                batches = rrd[f"/views/test/{entity_name(v.name)}/{part}"]
+                assert ev.step in {s for b in batches for s in b.column("step").to_pylist()}, part
+            assert f"/views/test/{entity_name(v.name)}/gt" in rrd
+    assert len(ranges) == 1  # one fixed colour range for the whole run: frames are comparable
+
+
+def test_trajectories_grow_linearly(run):
+    rrd, keep = run["rrd"], run["keep"]
+    m = sum(c.kind == "mirror_init" for c in keep.setup.cameras)
+    strips = rows_by_step(rrd["/world/trajectories"], "LineStrips3D:strips")
+    steps = sorted(strips)
+    assert steps == [e.step for e in keep.steps]
+    # Each logged step adds one segment per camera: after k steps the file holds 2 m k points, not O(k^2).
+    total = 0
+    for k, s in enumerate(steps, start=1):
+        assert len(strips[s]) == m and all(len(seg) == 2 for seg in strips[s])
+        total += sum(len(seg) for seg in strips[s])
+        assert total == 2 * m * k
+    # Consecutive segments join up: each starts where the previous one ended.
+    for a, b in zip(steps, steps[1:]):
+        np.testing.assert_allclose([seg[0] for seg in strips[b]], [seg[1] for seg in strips[a]], atol=1e-6)
+
+
+def test_blueprint_and_web_viewer(run):
+    assert RrdReader(run["path"]).blueprints(), "the default blueprint is stored with the recording"
+    served = run["served"]
+    assert served["url"].startswith("http://127.0.0.1:")
+    assert b"<html" in served["html"].lower()
+    assert served["listen"] == {"127.0.0.1"}  # web viewer and gRPC proxy: local only
+
+
+CHILD = textwrap.dedent("""
+    import sys
+    from pathlib import Path
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.events import Observer
+    from flipviz.training.trainer import Trainer
+    from flipviz.viz.rerun_observer import camera_paths, make_rerun_observer
+
+    class Say(Observer):
+        def on_step(self, e):
+            print(e.step, flush=True)
+
+    cfg = TrainConfig(scene="chair", res=32, steps=1000, log_every=1, images_every=0, batch_rays=256,
+                      out=Path(sys.argv[1]), checkpoint_every=0)
+    trainer = Trainer(cfg)
+    trainer.add_observer(make_rerun_observer(cfg, trainer.run_dir, flush_every_s=0.0))
+    trainer.add_observer(Say())
+    trainer.run()
+""")
+
+
+def test_killed_run_leaves_a_readable_recording(tmp_path):
+    out = tmp_path / "killed"
+    child = subprocess.Popen([sys.executable, "-c", CHILD, str(out)], stdout=subprocess.PIPE, text=True, cwd=REPO)
+    try:
+        for line in child.stdout:
+            if int(line) >= 3:
+                break
+        child.send_signal(signal.SIGKILL)  # no on_end, no footer
+    finally:
+        child.kill()
+        child.wait(30)
+    assert child.returncode == -signal.SIGKILL
+    rrd = read_rrd(out / "recording.rrd")
+    assert "/world/sphere" in rrd and len([p for p in rrd if p.startswith("/world/cameras/input/")]) == 8
+    assert sorted(rows_by_step(rrd["/curves/train/loss"], "Scalars:scalars"))[:3] == [1, 2, 3]

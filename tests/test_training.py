@@ -1,0 +1,197 @@
+"""The trainer: events, checkpoints, NaN handling, pause/stop, evaluation files, LPIPS fallback."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from flipviz.training import evaluate as ev
+from flipviz.training.checkpoint import load_checkpoint
+from flipviz.training.config import TrainConfig
+from flipviz.training.events import Observer
+from flipviz.training.trainer import Trainer
+
+RES = 24
+TINY = dict(res=RES, batch_rays=512, n_samples=32, grid_res=(32,))
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+@pytest.fixture(scope="module")
+def chair(tmp_path_factory):
+    import os
+
+    os.environ["FLIPVIZ_CACHE"] = str(tmp_path_factory.getbasetemp() / "cache")
+    from flipviz.data.builtin import load_builtin
+
+    return load_builtin("chair", RES)
+
+
+class Recorder(Observer):
+    def __init__(self):
+        self.setup, self.steps, self.images, self.end = None, [], [], None
+
+    def on_setup(self, e):
+        self.setup = e
+
+    def on_step(self, e):
+        self.steps.append(e)
+
+    def on_images(self, e):
+        self.images.append(e)
+
+    def on_end(self, e):
+        self.end = e
+
+
+class Broken(Observer):
+    def on_step(self, e):
+        raise RuntimeError("observer bug")
+
+
+def test_events_and_outputs(chair, tmp_path):
+    cfg = TrainConfig(method="flip+u", steps=30, log_every=10, images_every=20, out=tmp_path / "run", **TINY)
+    tr = Trainer(cfg, scene=chair)
+    rec = Recorder()
+    tr.add_observer(Broken())  # an observer's exception is logged, never fatal
+    tr.add_observer(rec)
+    m = tr.run()
+    assert m["status"] == "finished" and rec.end.status == "finished" and rec.end.step == 30
+
+    kinds = [c.kind for c in rec.setup.cameras]
+    for k in ("input", "mirror_init", "mirror_true", "test", "upper"):
+        assert kinds.count(k) == 8, k
+    assert rec.setup.plane is not None and rec.setup.true_plane is not None
+    assert rec.setup.sphere_center.shape == (3,) and rec.setup.total_steps == 30
+
+    assert [e.step for e in rec.steps] == [10, 20, 30]
+    e = rec.steps[-1]
+    assert {"loss", "psnr", "lr_field", "lr_pose"} <= set(e.scalars)
+    assert e.mirror_c2w.shape == (8, 4, 4)
+    for a in (e.mirror_rot_change_deg, e.mirror_trans_change, e.mirror_rot_err_deg, e.mirror_trans_err):
+        assert a.shape == (8,) and np.all(np.isfinite(a))
+
+    assert [i.step for i in rec.images] == [20, 30]  # periodic + final
+    im = rec.images[-1]
+    assert len(im.test_views) == 8 and len(im.mirror_views) == 8 and "test_psnr" in im.scalars
+    mv = im.mirror_views[0]
+    assert mv.rgb.shape == (RES, RES, 3) and mv.depth.shape == (RES, RES) and mv.beta2.shape == (RES, RES)
+    assert mv.gt.shape == (RES, RES, 3) and im.test_views[0].gt.shape == (RES, RES, 3)
+
+    # files: metrics.json, test renders, Blender-format transforms.json of the refined mirrors
+    run = tmp_path / "run"
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert len(metrics["per_view"]) == 8 and metrics["steps"] == 30 and metrics["method"] == "flip+u"
+    assert np.isfinite(metrics["psnr"]) and 0 <= metrics["ssim"] <= 1
+    assert len(list((run / "test_renders").glob("*.png"))) == 16
+    tf = json.loads((run / "transforms.json").read_text())
+    assert len(tf["frames"]) == 8 and tf["camera_angle_x"] > 0
+    for f, c2w in zip(tf["frames"], e.mirror_c2w):
+        assert (run / (f["file_path"] + ".png")).is_file()
+        np.testing.assert_allclose(f["transform_matrix"], c2w, atol=1e-5)
+
+
+def test_checkpoint_roundtrip_and_resume(chair, tmp_path):
+    cfg = TrainConfig(method="flip+u", steps=20, images_every=0, out=tmp_path / "a", eval_on_stop=False, **TINY)
+    tr = Trainer(cfg, scene=chair)
+    tr.run()
+    cam = tr.split.tests[0].camera
+    before = tr.render(cam)
+    cfg2 = TrainConfig(**{**cfg.__dict__, "out": tmp_path / "b", "resume": tmp_path / "a", "steps": 25})
+    tr2 = Trainer(cfg2, scene=chair)
+    assert tr2.step == 20
+    after = tr2.render(cam)
+    for k in ("rgb", "depth", "opacity", "beta2"):
+        np.testing.assert_array_equal(before[k], after[k])
+    np.testing.assert_array_equal(tr.mirror_c2w(), tr2.mirror_c2w())
+    m = tr2.run()  # continues from step 20
+    assert m["status"] == "finished" and tr2.step == 25
+
+
+def test_nan_stops_cleanly_and_keeps_last_good_checkpoint(chair, tmp_path):
+    cfg = TrainConfig(
+        method="flip", steps=60, log_every=5, checkpoint_every=10, images_every=0, out=tmp_path / "run", **TINY
+    )
+    tr = Trainer(cfg, scene=chair)
+
+    class Poison(Observer):  # corrupts the field after step 20's event, before its checkpoint
+        def on_step(self, e):
+            if e.step == 20:
+                with torch.no_grad():
+                    tr.model.field.density_grid.fill_(float("nan"))
+
+    rec = Recorder()
+    tr.add_observer(Poison())
+    tr.add_observer(rec)
+    m = tr.run()
+    assert m["status"] == "nan" and rec.end.status == "nan"
+    assert "\n" not in rec.end.message and "21" in rec.end.message
+    assert tr.step == 20
+    state = load_checkpoint(tmp_path / "run")
+    assert state["step"] == 10  # the NaN state at step 20 was not written over it
+    assert all(torch.isfinite(v).all() for v in state["model"].values() if v.is_floating_point())
+    cfg2 = TrainConfig(**{**cfg.__dict__, "resume": tmp_path / "run", "out": tmp_path / "r2"})
+    tr2 = Trainer(cfg2, scene=chair)
+    assert np.all(np.isfinite(tr2.render(tr2.split.tests[0].camera)["rgb"]))
+
+
+def test_pause_resume_stop(chair, tmp_path):
+    cfg = TrainConfig(method="bl", steps=100000, images_every=0, out=tmp_path / "run", eval_on_stop=False, **TINY)
+    tr = Trainer(cfg, scene=chair)
+    rec = Recorder()
+    tr.add_observer(rec)
+    th = threading.Thread(target=tr.run)
+    th.start()
+    try:
+        while tr.step < 3:
+            time.sleep(0.05)
+        tr.pause()
+        time.sleep(0.5)  # let the current step finish
+        s = tr.step
+        assert tr.paused
+        time.sleep(1.0)
+        assert tr.step == s  # no steps while paused
+        out = tr.render(tr.split.tests[0].camera, outputs=("rgb",))  # render works while paused
+        assert set(out) == {"rgb"} and out["rgb"].shape == (RES, RES, 3)
+        tr.resume()
+        while tr.step <= s:
+            time.sleep(0.05)
+    finally:
+        tr.stop()
+        th.join(timeout=60)
+    assert not th.is_alive()
+    assert rec.end.status == "stopped"
+    assert load_checkpoint(tmp_path / "run")["step"] == tr.step
+
+
+def test_lpips_unavailable_without_weights(tmp_path, monkeypatch):
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    img = np.random.default_rng(0).random((32, 32, 3)).astype(np.float32)
+    m = ev.score_views([img], [img], ["v"])
+    assert m["lpips"] == "unavailable" and m["per_view"][0]["lpips"] == "unavailable"
+    assert "alexnet" in m["lpips_reason"] and "\n" not in m["lpips_reason"]
+    assert m["ssim"] == pytest.approx(1.0) and m["psnr"] > 100
+
+
+def test_lpips_network_loads_weight_files(tmp_path, monkeypatch):
+    """With (random) weights in the torchvision / LPIPS file formats, LPIPS gives real distances."""
+    ck = tmp_path / "hub" / "checkpoints"
+    ck.mkdir(parents=True)
+    torch.manual_seed(0)
+    net = ev.LPIPSAlex()
+    torch.save({f"features.{k}": v for k, v in net.features.state_dict().items()}, ck / ev.ALEXNET_FILE)
+    torch.save({f"lin{i}.model.1.weight": l.weight.detach().abs() for i, l in enumerate(net.lins)}, ck / ev.LPIPS_FILE)
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    rng = np.random.default_rng(0)
+    a, b = rng.random((64, 64, 3)).astype(np.float32), rng.random((64, 64, 3)).astype(np.float32)
+    m = ev.score_views([a, a], [a, b], ["same", "diff"])
+    assert m["per_view"][0]["lpips"] == pytest.approx(0.0, abs=1e-6)
+    assert m["per_view"][1]["lpips"] > 0 and isinstance(m["lpips"], float)
