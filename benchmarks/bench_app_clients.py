@@ -7,7 +7,7 @@ phase ends; every client reads everything the server sends (background images in
 Training speed = trainer steps / wall seconds in each phase. Target: with 4 clients, training
 keeps >= 50% of its solo speed.
 
-    python benchmarks/bench_app_clients.py --res 100 --seconds 20
+    python benchmarks/bench_app_clients.py --res 100 --seconds 30
 """
 
 from __future__ import annotations
@@ -34,13 +34,14 @@ class BenchConfig:
     scene: str = "chair"
     res: int = 100
     batch_rays: int = 4096
-    seconds: float = 20.0
+    seconds: float = 30.0
     """Length of each phase."""
     clients: tuple[int, ...] = (0, 1, 4, 0)
     """Client counts, one phase each (the last 0 re-measures solo speed, for drift)."""
     view_width: int = 192
     render_duty: float = 0.25
-    warmup_s: float = 8.0
+    warmup_s: float = 20.0
+    """Training time before the first phase (the first steps are slower)."""
     out: Path | None = None
     """Write the results as JSON here."""
 

@@ -24,7 +24,7 @@ from flipviz.data.dataset import DatasetError
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 TINY = ["--methods", "bl,flip+u", "--configs", "1,2", "--res", "24", "--steps", "30", "--batch-rays", "256",
-        "--cpus-per-run", "1", "--workers", "2"]  # fmt: skip
+        "--grid-res", "16", "24", "--n-samples", "32", "--cpus-per-run", "1", "--workers", "2"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +116,12 @@ def test_bench_resumes_after_kill_and_records_failures(tmp_path: Path, cache: Pa
     rows = _check_outputs(out, 8)
     assert {r["status"] for r in rows if r["scene"] == "broken"} == {"failed"}
     assert "## Failed runs" in (out / "table.md").read_text()
+    # The reports can be rebuilt from the run folders alone, without training.
+    for f in ("results.csv", "results.json", "table.md", "psnr_chart.png", "grid_chair.png"):
+        (out / f).unlink()
+    run_bench(BenchConfig(methods="bl,flip+u", configs="1,2", steps=30, out=out, report_only=True))
+    _check_outputs(out, 8)
+    assert _results(out) == final
 
 
 def test_bench_on_ray(tmp_path: Path, cache: Path, monkeypatch) -> None:
@@ -124,7 +130,7 @@ def test_bench_on_ray(tmp_path: Path, cache: Path, monkeypatch) -> None:
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         cfg = BenchConfig(scenes="chair", methods="bl,flip+u", configs="1", res=24, steps=30, batch_rays=256,
-                          out=tmp_path / "ray", executor="ray")  # fmt: skip
+                          grid_res=(16, 24), n_samples=32, out=tmp_path / "ray", executor="ray")  # fmt: skip
         out = run_bench(cfg)
     finally:
         ray.shutdown()
@@ -153,7 +159,8 @@ def test_plan_keys_and_ablation(tmp_path: Path) -> None:
     }
     # Keys cover everything that changes the result (steps, res, seed, data path) ...
     s = specs[0]
-    for change in (dict(steps=101), dict(res=33), dict(seed=1), dict(batch_rays=128), dict(field="nerf")):
+    changes = (dict(steps=101), dict(res=33), dict(seed=1), dict(batch_rays=128), dict(field="nerf"), dict(grid_res=(8,)))
+    for change in changes:
         other = BenchConfig(**{**cfg.__dict__, **change})
         assert s.key(other) != s.key(cfg), change
     # ... and nothing that does not (output folder, workers, executor).

@@ -29,6 +29,10 @@ class BenchConfig:
     """Rays per optimisation step."""
     field: Literal["grid", "nerf"] = "grid"
     """Radiance field of every run (grid: fast dense voxel grid; nerf: the paper's MLP)."""
+    n_samples: int | None = None
+    """Samples per ray (None: the field's default)."""
+    grid_res: tuple[int, ...] | None = None
+    """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
     out: Path = Path("bench")
     """Output folder: results.csv/json, table.md, figures, runs/<key>/ (one folder per run)."""
     workers: int = 1
@@ -51,6 +55,8 @@ class BenchConfig:
     """Keep each finished run's checkpoint.pt (large); by default only results and renders stay."""
     grid_views: int = 4
     """Unobserved views shown in the qualitative grid."""
+    report_only: bool = False
+    """Train nothing: rebuild the reports from every result in <out>/runs/ (e.g. after a code change)."""
     quiet: bool = False
     """No progress bars (the log lines stay)."""
 

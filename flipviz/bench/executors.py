@@ -97,7 +97,8 @@ def _bar_observer(task: RunTask):
             self.bar = None
 
         def on_setup(self, event) -> None:
-            kw = {} if in_ray else {"position": task.slot + 1, "leave": False, "dynamic_ncols": True, "file": sys.stderr}
+            kw = {"position": task.slot + 1, "leave": False, "dynamic_ncols": True, "file": sys.stderr}
+            kw = {} if in_ray else kw
             self.bar = bar_cls(total=event.total_steps, desc=f"{event.scene} {_label(task)} cfg{event.config}", **kw)
 
         def on_step(self, event) -> None:
@@ -114,7 +115,9 @@ def _bar_observer(task: RunTask):
 
 def _label(task: RunTask) -> str:
     lab = task.labels
-    return lab["method"] + ("" if lab.get("default_flags", True) else f" (ba={int(lab['ba'])},u={int(lab['uncertainty'])})")
+    if lab.get("default_flags", True):
+        return lab["method"]
+    return f"{lab['method']} (ba={int(lab['ba'])},u={int(lab['uncertainty'])})"
 
 
 def _inside_ray_worker() -> bool:
@@ -166,11 +169,12 @@ def execute_run(task: RunTask | dict) -> dict:
         task.train = task.train | {"out": str(run_dir)}
     started = time.time()
     run_id = uuid.uuid4().hex
-    write_json_atomic(run_dir / STARTED_FILE, {"run_id": run_id, "started": started, "pid": os.getpid(), "host": os.uname().nodename})
+    host = os.uname().nodename
+    write_json_atomic(run_dir / STARTED_FILE, {"run_id": run_id, "started": started, "pid": os.getpid(), "host": host})
     result = {
         "key": task.key, "run_id": run_id, **task.labels, "status": "failed", "error": "",
         "psnr": None, "ssim": None, "lpips": None, "train_seconds": None, "steps": None,
-        "started": started, "finished": None, "threads": task.threads, "host": os.uname().nodename,
+        "started": started, "finished": None, "threads": task.threads, "host": host,
         "train_config": task.train,
     }  # fmt: skip
     try:
@@ -185,13 +189,15 @@ def execute_run(task: RunTask | dict) -> dict:
         observers = [_bar_observer(task)] if task.progress else []
         metrics = _train(cfg, observers) or {}
         status = metrics.get("status", "finished")
+        ok = status in ("finished", "ok")
+        lpips = metrics.get("lpips")
         if status == "stopped":  # Ctrl-C: not a result; the restart resumes from the checkpoint
             return result | {"status": "interrupted", "error": "interrupted"}
         result.update(
-            status="ok" if status in ("finished", "ok") else "failed",
-            error="" if status in ("finished", "ok") else f"run ended with status {status!r}: {metrics.get('message', '')}",
+            status="ok" if ok else "failed",
+            error="" if ok else f"run ended with status {status!r}: {metrics.get('message', '')}",
             psnr=_num(metrics.get("psnr")), ssim=_num(metrics.get("ssim")),
-            lpips=metrics.get("lpips", "unavailable") if isinstance(metrics.get("lpips"), str) else _num(metrics.get("lpips")),
+            lpips=lpips if isinstance(lpips, str) else _num(lpips),
             train_seconds=_num(metrics.get("train_seconds")), steps=metrics.get("steps"),
             metrics={k: v for k, v in metrics.items() if k != "per_view"}, per_view=metrics.get("per_view", []),
         )  # fmt: skip
@@ -202,6 +208,7 @@ def execute_run(task: RunTask | dict) -> dict:
         result["error"] = msg[0] if msg else type(e).__name__
         (run_dir / "error.txt").write_text(traceback.format_exc())
     result["finished"] = time.time()
+    result["wall_seconds"] = result["finished"] - started  # incl. scene loading and evaluation
     result.setdefault("versions", {})
     write_json_atomic(run_dir / RESULT_FILE, result)
     if not task.keep_checkpoint and result["status"] == "ok":
@@ -307,11 +314,10 @@ def _started_after(started: Path, t0: float) -> bool:
         return True
 
 
-def _died_result(task: RunTask) -> dict:
-    res = {"key": task.key, "run_id": uuid.uuid4().hex, **task.labels, "status": "failed",
-           "error": "worker process died (killed or out of memory)", "psnr": None, "ssim": None,
-           "lpips": None, "train_seconds": None, "steps": None, "started": None, "finished": time.time(),
-           "train_config": task.train, "versions": {}}  # fmt: skip
+def _died_result(task: RunTask, error: str = "worker process died (killed or out of memory)") -> dict:
+    res = {"key": task.key, "run_id": uuid.uuid4().hex, **task.labels, "status": "failed", "error": error,
+           "psnr": None, "ssim": None, "lpips": None, "train_seconds": None, "steps": None, "started": None,
+           "finished": time.time(), "train_config": task.train, "versions": {}}  # fmt: skip
     write_json_atomic(Path(task.run_dir) / RESULT_FILE, res)
     return res
 
@@ -331,10 +337,18 @@ def run_ray(tasks: list[RunTask], address: str | None, cpus_per_run: int, gpus_p
     if not _flipviz_installed():  # a source checkout: let the workers import it from here
         root = str(Path(__file__).resolve().parents[2])
         env_vars["PYTHONPATH"] = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p)
-    if not ray.is_initialized():
-        kw = {"address": None if address in (None, "local") else address, "include_dashboard": False,
-              "log_to_driver": True}  # fmt: skip
-        ray.init(**kw)
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(address=None if address in (None, "local") else address, include_dashboard=False)
+    try:
+        _run_ray_tasks(ray, tasks, cpus_per_run, gpus_per_run, env_vars, on_result)
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def _run_ray_tasks(ray, tasks: list[RunTask], cpus_per_run: int, gpus_per_run: float, env_vars: dict,
+                   on_result: Callable[[dict], None]) -> None:  # fmt: skip
     remote = ray.remote(execute_run).options(
         num_cpus=cpus_per_run, num_gpus=gpus_per_run, max_retries=0, runtime_env={"env_vars": env_vars}
     )
@@ -348,7 +362,7 @@ def run_ray(tasks: list[RunTask], address: str | None, cpus_per_run: int, gpus_p
                 res = ray.get(ref)
             except Exception as e:  # the worker died or ray failed the task
                 msg = f"{type(e).__name__}: {e}".strip().splitlines()
-                res = _died_result(t) | {"error": "ray task failed: " + (msg[0] if msg else "")}
+                res = _died_result(t, "ray task failed: " + (msg[0] if msg else ""))
             _write_shipped(Path(t.run_dir), res.pop("_files", {}))
             on_result(res)
 

@@ -37,13 +37,13 @@ def psnr_chart(rows: list[dict], methods: list[str], path: Path) -> Path:
         for scene in scenes:
             vals = [r["psnr"] for r in main_rows(rows, scene, m) if r.get("psnr") is not None]
             means.append(float(np.mean(vals)) if vals else np.nan)
-            stds.append(float(np.std(vals)) if len(vals) > 1 else 0.0)
+            stds.append(float(np.std(vals)) if len(vals) > 1 else np.nan)  # nan: no error bar
             prow = _is_nerf_synthetic(rows, scene)
             paper.append(TABLE3["psnr"][prow][m] if prow else np.nan)
         finite = [v for v in means if np.isfinite(v)]
         means.append(float(np.mean(finite)) if finite else np.nan)
-        stds.append(0.0)
-        paper.append(np.nan)
+        stds.append(np.nan)
+        paper.append(float(np.mean(paper)) if np.isfinite(paper).all() else np.nan)  # all NeRF-synthetic
         x = np.arange(len(groups)) + (j - (len(methods) - 1) / 2) * width
         ax.bar(x, means, width, yerr=stds, capsize=2, label=METHOD_LABELS[m], color=colors(j))
         if np.isfinite(paper).any():
@@ -69,7 +69,9 @@ def run_renders(out: Path, row: dict) -> list[tuple[str, Path, Path]]:
     return [f for f in found if f[1].is_file()]
 
 
-def qualitative_grid(out: Path, rows: list[dict], scene: str, methods: list[str], n_views: int, path: Path) -> Path | None:
+def qualitative_grid(
+    out: Path, rows: list[dict], scene: str, methods: list[str], n_views: int, path: Path
+) -> Path | None:
     """Rows: ground truth, then each method; columns: the first `n_views` unobserved views of the
     lowest configuration that every method finished (else the lowest with any)."""
     plt = _plt()

@@ -21,7 +21,9 @@ from flipviz.data.dataset import DatasetError
 from flipviz.training.config import TrainConfig
 
 # TrainConfig fields that change where a run writes or what it logs, not what it computes.
-NOT_IN_KEY = ("out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop")
+NOT_IN_KEY = (
+    "out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop",
+)  # fmt: skip
 ABLATION = ((False, False), (True, False), (False, True), (True, True))  # (BA, U), Table II order
 
 
@@ -39,7 +41,8 @@ class RunSpec:
     def train_config(self, cfg: BenchConfig, out: Path | None = None) -> TrainConfig:
         return TrainConfig(
             scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
-            config=self.config, res=cfg.res, steps=cfg.steps, batch_rays=cfg.batch_rays, field=cfg.field, ba=self.ba,
+            config=self.config, res=cfg.res, steps=cfg.steps, batch_rays=cfg.batch_rays, field=cfg.field,
+            n_samples=cfg.n_samples, grid_res=cfg.grid_res, ba=self.ba,
             uncertainty=self.uncertainty, seed=cfg.seed, device=cfg.device, out=out, no_rrd=True,
             images_every=0,  # nobody watches: skip the periodic test renders
         )  # fmt: skip
@@ -147,8 +150,16 @@ def run_bench(cfg: BenchConfig) -> Path:
     from flipviz.bench.figures import write_figures
     from flipviz.bench.tables import write_reports
 
-    specs = plan(cfg)
     out = Path(cfg.out).expanduser().resolve()
+    if cfg.report_only:
+        rows = [r for p in sorted((out / "runs").glob("*/" + RESULT_FILE)) if (r := read_result(p.parent))]
+        if not rows:
+            raise ValueError(f"--report-only: no results in {out / 'runs'}")
+        write_reports(out, rows, cfg)
+        write_figures(out, rows, cfg)
+        log(f"reports of {len(rows)} runs rebuilt in {out}")
+        return out
+    specs = plan(cfg)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     logfile = out / "bench.log"
     write_json_atomic(out / "bench.json", {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()})
@@ -189,7 +200,8 @@ def run_bench(cfg: BenchConfig) -> Path:
             results[key] = res
             bar.update(1)
             if res.get("status") == "ok":
-                log(f"done {key}: PSNR {res.get('psnr', float('nan')):.2f} in {res.get('train_seconds') or 0:.0f} s", logfile)
+                psnr, secs = res.get("psnr") or float("nan"), res.get("train_seconds") or 0.0
+                log(f"done {key}: PSNR {psnr:.2f} in {secs:.0f} s", logfile)
             else:
                 log(f"FAILED {key}: {res.get('error', '')}", logfile)
 

@@ -13,8 +13,8 @@ from flipviz.bench.executors import write_json_atomic
 from flipviz.bench.paper_numbers import METHOD_LABELS, METHOD_ORDER, TABLE2, TABLE3, paper_row
 
 CSV_FIELDS = (
-    "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "train_seconds", "steps",
-    "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
+    "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "train_seconds",
+    "wall_seconds", "steps", "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
     "flipviz_version", "torch_version", "numpy_version",
 )  # fmt: skip
 METRICS = ("psnr", "ssim", "lpips")
@@ -139,7 +139,8 @@ def table2(rows: list[dict]) -> str:
         p = TABLE2[(ba, u)]
         tick = lambda b: "✓" if b else "-"  # noqa: E731
         ours = " | ".join(_fmt(_mean(per_scene[m]), m) for m in METRICS)
-        lines.append(f"| {tick(ba)} | {tick(u)} | {ours} | {n} | {p['psnr']:.3f} | {p['ssim']:.3f} | {p['lpips']:.3f} |")
+        paper = f"{p['psnr']:.3f} | {p['ssim']:.3f} | {p['lpips']:.3f}"
+        lines.append(f"| {tick(ba)} | {tick(u)} | {ours} | {n} | {paper} |")
     return "\n".join(lines)
 
 
@@ -180,7 +181,10 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
     parts = [
         "# flipviz bench: Just Flip, paper Table III" + (" and Table II" if cfg.ablation else ""),
         "",
-        f"Settings: field `{cfg.field}`, {cfg.res} px, {cfg.steps} steps of {cfg.batch_rays} rays, seed {cfg.seed}, device `{cfg.device}`, "
+        f"Settings: field `{cfg.field}`"
+        + (f" (grid {cfg.grid_res})" if cfg.grid_res else "") + (f", {cfg.n_samples} samples/ray" if cfg.n_samples else "")
+        + f", {cfg.res} px, {cfg.steps} steps of {cfg.batch_rays} rays, "
+        f"seed {cfg.seed}, device `{cfg.device}`, "
         f"configurations {', '.join(map(str, configs))}. {n_ok}/{len(rows)} runs ok. "
         f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items()) or 'n/a'}.",
         "",

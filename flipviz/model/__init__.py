@@ -74,7 +74,7 @@ class FieldConfig:
     upsample_at: tuple[float, ...] = (0.25,)
     """Training fractions at which the grid moves to the next resolution."""
     feat_dim: int = 6
-    alpha_init: float = 1e-6
+    alpha_init: float = 1e-2
     """Initial opacity of one voxel (density starts very low)."""
     view_dependent: bool = True
     view_pe: int = 2

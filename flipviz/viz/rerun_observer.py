@@ -119,7 +119,7 @@ def camera_paths(cameras: list[CameraInfo]) -> list[str]:
 class RerunObserver(Observer):
     """Logs a run's setup, steps, periodic renders and end to a Rerun recording stream."""
 
-    def __init__(self, opts: RerunOptions, blueprint_names: tuple[list[str], list[str]] | None = None) -> None:
+    def __init__(self, opts: RerunOptions) -> None:
         self.opts = opts
         self.rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
         self.viewer_url: str | None = None
@@ -217,7 +217,8 @@ class RerunObserver(Observer):
             static=True,
         )
         rec.log("world/sphere/center", rr.Points3D([c], radii=0.03, colors=[(120, 120, 120)]), static=True)
-        rec.log("world/bbox", rr.Boxes3D(mins=[e.bbox[0]], sizes=[e.bbox[1] - e.bbox[0]], colors=[(90, 90, 90)]),
+        rec.log("world/bbox", rr.Boxes3D(mins=[e.bbox[0]], sizes=[e.bbox[1] - e.bbox[0]], colors=[(90, 90, 90)],
+                                            fill_mode="majorwireframe", radii=0.003),
                 static=True)
         # The mirror plane used: a translucent square with its normal; the true plane: an outline.
         for path, plane, color, filled in (("world/mirror_plane", e.plane, COLORS["mirror_init"], True),
@@ -373,5 +374,5 @@ class RerunObserver(Observer):
 
 def make_rerun_observer(cfg: TrainConfig, run_dir: Path, **overrides) -> RerunObserver:
     """The observer the CLI and the app attach (cfg.rrd, default <run_dir>/recording.rrd; cfg.rerun_serve)."""
-    path = Path(cfg.rrd) if cfg.rrd is not None else Path(run_dir) / "recording.rrd"
+    path = None if cfg.no_rrd else Path(cfg.rrd) if cfg.rrd is not None else Path(run_dir) / "recording.rrd"
     return RerunObserver(RerunOptions(path=path, serve=cfg.rerun_serve, **overrides))

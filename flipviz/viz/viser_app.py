@@ -66,8 +66,9 @@ class App(Observer):
         self.cfg = cfg
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, label="flipviz", verbose=False)
         self._set_initial_camera(np.zeros(3), 4.0)
-        self.port = self.server.get_port()
-        self.url = f"http://{cfg.host}:{self.port}"
+        self.port = self.server.get_port()  # the port actually bound (viser moves on when it is busy)
+        shown = "localhost" if cfg.host in ("0.0.0.0", "::", "") else cfg.host
+        self.url = f"http://{shown}:{self.port}"
         self.worker = RenderWorker(cfg.render_duty)
         self.scene = RunScene(self.server)
         self.trainer = None  # flipviz.training.trainer.Trainer of the current run
@@ -122,7 +123,7 @@ class App(Observer):
                 self.config_dd = gui.add_dropdown(
                     "Configuration", tuple(str(i) for i in range(1, 9)), initial_value=str(self.cfg.config)
                 )
-                self.steps_num = gui.add_number("Steps", int(self.cfg.steps), min=1, step=100)
+                self.steps_num = gui.add_number("Steps", int(self.cfg.steps), min=1, step=1)
                 self.restart_btn = gui.add_button("Restart training", icon=viser.Icon.REFRESH)
             self.your_view = gui.add_folder("Your view")
         with tabs.add_tab("Views", viser.Icon.CAMERA):
@@ -146,9 +147,9 @@ class App(Observer):
         )
 
     def _set_initial_camera(self, center: np.ndarray, radius: float) -> None:
-        """New tabs start outside the camera sphere, looking at its centre (z up)."""
+        """New tabs start outside the camera sphere, above the camera ring, looking at its centre (z up)."""
         cam = self.server.initial_camera
-        cam.position = center + radius * np.array([1.5, -1.5, 1.1])
+        cam.position = center + radius * np.array([1.0, -1.0, 1.9])
         cam.look_at = center
         cam.fov = np.deg2rad(50.0)
 

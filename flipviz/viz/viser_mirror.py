@@ -197,21 +197,21 @@ class MirrorLesson:
         """PSNR of the model rendered from each (BA-refined) mirrored camera vs its flipped image."""
         if event.mirror_views:
             s = [psnr(v.rgb, v.gt) if v.gt is not None else float("nan") for v in event.mirror_views]
-            self.scores["training (BA) poses, step %d" % event.step] = s
+            self.scores[f"BA poses, step {event.step}"] = s
             self.app.scene.set_mirror_colors(s)
             self._show_table([v.name for v in event.mirror_views])
 
     def _score_now(self) -> None:
         """Render from the preview poses (plane moved) or the current BA poses, and score them."""
         if self.moved and self.preview_cams:
-            cams, label = self.preview_cams, "plane preview, step %d" % self.app.step
+            cams, label = self.preview_cams, f"plane preview, step {self.app.step}"
         else:
             c2w = self.app.mirror_c2w
             if c2w is None or len(c2w) != len(self.inputs):
                 cams = mirror_cameras_for_plane(self.inputs, self.train_plane, self.sphere)
             else:
                 cams = [c.with_pose(T) for c, T in zip(self.inputs, c2w)]
-            label = "training poses, step %d" % self.app.step
+            label = f"BA poses (now), step {self.app.step}"
         scores = []
         for cam, gt in zip(cams, self.flipped):
             out = self.app.render(cam, outputs=("rgb",))

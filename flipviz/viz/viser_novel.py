@@ -23,7 +23,7 @@ from flipviz.viz.viser_common import (
 if TYPE_CHECKING:
     from flipviz.viz.viser_app import App
 
-BLANK = np.full((8, 8, 3), 235, np.uint8)
+BLANK = np.full((48, 48, 3), 235, np.uint8)  # placeholder until the first render
 
 
 class NovelCameras:
