@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"results: {run_bench(cmd)}")
             return 0
         return _export(cmd)
-    except DatasetError as e:
+    except (DatasetError, ValueError) as e:  # bad input: one line, no traceback
         print(f"flipviz: error: {e}", file=sys.stderr)
         return 2
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import tyro
 
+from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.geometry import mirror_cameras_for_plane
 from flipviz.geometry.sphere import Sphere
@@ -25,6 +26,7 @@ from flipviz.viz.viser_common import (
     plane_to_arg,
     plane_wxyz,
     psnr,
+    pull_inside,
     to_viser_pose,
     upscale,
     visualize_output,
@@ -80,6 +82,27 @@ def test_pose_conversion_roundtrip():
     assert cam.height == 20 and np.isclose(cam.focal, 10.0) and np.allclose(cam.c2w[:3, 2], [0, 0, -1])
 
 
+def test_pull_inside_keeps_the_framing():
+    from flipviz.geometry.poses import look_at
+
+    center, r = np.array([0.1, 0.2, 0.3]), 4.0
+    near = Camera(look_at(center + [0, 3.0, 1.0], center), 64, 48, 50.0)
+    assert pull_inside(near, center, r) is near  # inside the sphere: unchanged
+    far = Camera(look_at(center + [6.0, -6.0, 5.0], center + [0.3, 0, 0]), 64, 48, 50.0)
+    moved = pull_inside(far, center, r)
+    assert np.isclose(np.linalg.norm(moved.center - center), r) and np.allclose(moved.rotation, far.rotation)
+
+    def project(cam, p):  # pixel of world point p (OpenGL camera, y up)
+        q = cam.rotation.T @ (p - cam.center)
+        return np.array([cam.focal * q[0] / -q[2], cam.focal * q[1] / -q[2]])
+
+    # points on the plane through the centre, perpendicular to the axis, stay where they were
+    f = -far.c2w[:3, 2]
+    for p in (center, center + 0.5 * far.c2w[:3, 0], center + 0.7 * far.c2w[:3, 1]):
+        p = p - ((p - center) @ f) * f
+        assert np.allclose(project(moved, p), project(far, p), atol=1e-6)
+
+
 def test_plane_gizmo_roundtrip():
     plane = Plane(np.array([0.1, -0.2, 0.3]), np.array([1.0, 2.0, 0.5]))
     back = plane_from_pose(plane_wxyz(plane.normal), plane.point)
@@ -103,7 +126,9 @@ def test_scene_and_own_view(app):
     async def go():
         async with ViserTestClient(url(app)) as c:
             await c.send_camera((4.0, -4.0, 3.0))
-            frustum = await c.wait_for(lambda m: m["type"] == "CameraFrustumMessage" and m["name"].startswith("/run/inputs/"))
+            frustum = await c.wait_for(
+                lambda m: m["type"] == "CameraFrustumMessage" and m["name"].startswith("/run/inputs/")
+            )
             assert frustum["props"]["_image_data"]  # input thumbnails on the frustums
             await c.wait_for(lambda m: m["type"] == "IcosphereMessage" and m["name"] == "/run/sphere/mesh")
             await c.wait_for(lambda m: m["type"] == "TransformControlsMessage" and m["name"] == "/plane")
@@ -138,8 +163,10 @@ def test_novel_camera_render(app):
             img = jpeg(m["updates"]["_data"])[..., ::-1]
             # it is the model seen from the dragged camera (JPEG-compressed; training moves on meanwhile)
             cam = app.novel.camera(name.split("/")[-1])
-            assert np.allclose(cam.center, (3.0, -3.0, 2.0)) and np.allclose(-cam.c2w[:3, 2], -cam.center / np.linalg.norm(cam.center), atol=1e-6)
-            expected = upscale(visualize_output(app.render(cam), "RGB"), 192)
+            forward = -cam.c2w[:3, 2]  # OpenGL: looks along -z, here at the origin
+            assert np.allclose(cam.center, (3.0, -3.0, 2.0))
+            assert np.allclose(forward, -cam.center / np.linalg.norm(cam.center), atol=1e-6)
+            expected = upscale(visualize_output(app.render(pull_inside(cam, *app.sphere())), "RGB"), 192)
             assert img.shape == expected.shape and np.abs(img.astype(float) - expected).mean() < 12.0
             await c.wait_for(
                 lambda m: m["type"] == "SceneNodeUpdateMessage" and m["name"] == f"{name}/frustum"
@@ -155,8 +182,9 @@ def test_pause_stops_steps_and_resume(app):
             await c.send_camera((4.0, -4.0, 3.0))
             await c.wait_gui("Pause")
             await c.click("Pause")
+            paused_md = "status: **paused**"
             await c.wait_for(
-                lambda m: m["type"] == "GuiUpdateMessage" and "status: **paused**" in str(m["updates"].get("_markdown", ""))
+                lambda m: m["type"] == "GuiUpdateMessage" and paused_md in str(m["updates"].get("_markdown", ""))
             )
             await asyncio.sleep(1.0)  # a step already under way may still finish
             s0 = app.trainer.step
@@ -208,7 +236,6 @@ def test_mirror_consistency_scores_and_outputs(app):
             await asyncio.sleep(1.0)
             n = len(c.messages)
             await c.click("Score mirrors")
-            uuid = c.gui["Restart with this plane"]["uuid"]  # noqa: F841 (the lesson's GUI is there)
             m = await c.wait_for(
                 lambda m: m["type"] == "GuiUpdateMessage" and "**mean**" in str(m["updates"].get("_markdown", "")),
                 start=n,

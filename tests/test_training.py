@@ -195,3 +195,16 @@ def test_lpips_network_loads_weight_files(tmp_path, monkeypatch):
     m = ev.score_views([a, a], [a, b], ["same", "diff"])
     assert m["per_view"][0]["lpips"] == pytest.approx(0.0, abs=1e-6)
     assert m["per_view"][1]["lpips"] > 0 and isinstance(m["lpips"], float)
+
+
+def test_flip_u_beats_baseline_on_unobserved_views(chair, tmp_path):
+    """The paper's claim, small: on the (mirror-symmetric) chair, Flip+U renders the unobserved
+    side better than B/L. Measured at res 48 / 400 steps: 26.2 dB vs 20.3 dB (official plane)."""
+    psnr = {}
+    for method in ("bl", "flip+u"):
+        cfg = TrainConfig(
+            method=method, mirror_plane="official", steps=150, batch_rays=1024, n_samples=48, grid_res=(32, 48),
+            res=RES, images_every=0, checkpoint_every=0, out=tmp_path / method,
+        )  # fmt: skip
+        psnr[method] = Trainer(cfg, scene=chair).run()["psnr"]
+    assert psnr["flip+u"] > psnr["bl"] + 1.0, psnr

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import threading
 import time
@@ -52,13 +53,9 @@ def write_json_atomic(path: Path, data: dict) -> None:
 
 
 def _json_default(o):
-    if hasattr(o, "item"):  # numpy / torch scalars
-        return o.item()
-    if hasattr(o, "tolist"):
+    if hasattr(o, "tolist"):  # numpy / torch arrays and scalars
         return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    return str(o)
+    return str(o)  # paths and anything else
 
 
 def versions() -> dict[str, str]:
@@ -70,12 +67,9 @@ def versions() -> dict[str, str]:
 
         fv = version("flipviz")
     except Exception:  # a source checkout that is not pip-installed: read pyproject.toml
-        fv = "unknown"
         pp = Path(__file__).resolve().parents[2] / "pyproject.toml"
-        if pp.is_file():
-            import tomllib
-
-            fv = tomllib.loads(pp.read_text()).get("project", {}).get("version", "unknown")
+        m = re.search(r'^version\s*=\s*"([^"]+)"', pp.read_text(), re.M) if pp.is_file() else None
+        fv = m.group(1) if m else "unknown"
     return {"flipviz": fv, "torch": torch.__version__, "numpy": numpy.__version__}
 
 
@@ -243,10 +237,9 @@ def _collect_files(run_dir: Path) -> dict[str, bytes]:
 _SLOT = 0
 
 
-def _init_worker(threads: int, slots, env: dict[str, str]) -> None:
+def _init_worker(threads: int, slots) -> None:
     """Pool initializer: thread share, progress row, and exit when the bench process dies."""
     global _SLOT
-    os.environ.update(env)
     import torch
 
     torch.set_num_threads(max(1, threads))
@@ -275,7 +268,6 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
     ctx = mp.get_context("spawn")
     # Spinning OpenMP threads collapse (measured 10x slower) when the CPU is oversubscribed.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # inherited by the spawned workers
-    env = {k: v for k, v in os.environ.items() if k.startswith(("FLIPVIZ_", "MALLOC_"))}
     todo = list(tasks)
     while todo:
         round_start = time.time()
@@ -284,8 +276,9 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
         for i in range(n):
             slots.put(i)
         threads = todo[0].threads
-        pool = ProcessPoolExecutor(n, mp_context=ctx, initializer=_init_worker, initargs=(threads, slots, env))
+        pool = ProcessPoolExecutor(n, mp_context=ctx, initializer=_init_worker, initargs=(threads, slots))
         futures = {pool.submit(_run_in_worker, t): t for t in todo}
+        tasks_this_round = list(todo)
         broken: list[RunTask] = []
         try:
             pending = set(futures)
@@ -299,19 +292,23 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
         finally:
             pool.shutdown(wait=not broken, cancel_futures=True)
         todo = []
-        for t in broken:  # started but never finished: the process died under it
-            started, result = Path(t.run_dir) / STARTED_FILE, Path(t.run_dir) / RESULT_FILE
-            if started.is_file() and not result.is_file() and _started_after(started, round_start):
-                on_result(_died_result(t))
+        for t in broken:
+            res = _read_json(Path(t.run_dir) / RESULT_FILE)
+            if res.get("finished", 0) >= round_start:  # finished just before the pool broke
+                on_result(res)
+            elif _read_json(Path(t.run_dir) / STARTED_FILE).get("started", 0) >= round_start:
+                on_result(_died_result(t))  # the process died under it
             else:
-                todo.append(t)
+                todo.append(t)  # never started: try again in a fresh pool
+        if todo and len(todo) == len(tasks_this_round):
+            raise RuntimeError("bench worker processes die before starting any run")
 
 
-def _started_after(started: Path, t0: float) -> bool:
+def _read_json(path: Path) -> dict:
     try:
-        return json.loads(started.read_text()).get("started", 0) >= t0
-    except Exception:
-        return True
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
 
 
 def _died_result(task: RunTask, error: str = "worker process died (killed or out of memory)") -> dict:

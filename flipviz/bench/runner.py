@@ -195,8 +195,8 @@ def run_bench(cfg: BenchConfig) -> Path:
             if res.get("status") == "interrupted":
                 log(f"interrupted {key}", logfile)
                 return
-            if read_result(out / "runs" / key) is None:  # e.g. a died worker: record it here
-                write_json_atomic(out / "runs" / key / RESULT_FILE, res)
+            if (read_result(out / "runs" / key) or {}).get("run_id") != res.get("run_id"):
+                write_json_atomic(out / "runs" / key / RESULT_FILE, res)  # e.g. a run on another machine
             results[key] = res
             bar.update(1)
             if res.get("status") == "ok":

@@ -93,9 +93,10 @@ class FieldConfig:
     occ_start: int = 100
     """Step from which the occupancy mask is refreshed (all True before)."""
     occ_every: int = 50
-    occ_thresh: float = 1e-3
-    """Voxel alpha below min(occ_thresh, occ_rel * max alpha) is empty."""
-    occ_rel: float = 0.01
+    occ_thresh: float = 0.02
+    """Voxel alpha (over one sample spacing) below min(occ_thresh, occ_rel * max alpha) is empty.
+    Pruning this low-density haze also removes the white fog few-view training grows."""
+    occ_rel: float = 0.05
     occ_dilate: int = 1
     # --- nerf -----------------------------------------------------------------------------
     nerf_depth: int = 8

@@ -24,12 +24,12 @@ class TrainConfig:
     """Protocol configuration n = 1..8 (which half ring is observed)."""
     res: int = 100
     """Image width in pixels (images are square)."""
-    steps: int = 3000
+    steps: int = 600
     """Optimisation steps."""
-    batch_rays: int = 4096
+    batch_rays: int = 1024
     field: Literal["grid", "nerf"] = "grid"
     """grid: fast dense voxel grid (default); nerf: vanilla NeRF MLP, the paper's setting."""
-    mirror_plane: str = "opposite"
+    mirror_plane: str = "official"
     """opposite | official | scene | 'px,py,pz;nx,ny,nz' (a point and a normal)."""
     ba: bool = True
     """Bundle-adjust the mirrored poses (Flip methods)."""
@@ -64,7 +64,7 @@ class TrainConfig:
     """Evaluate the test views also when a run is stopped early."""
     beta2_mode: Literal["linear", "variance"] = "linear"
     """How the per-sample variances composite into beta_hat^2 (see flipviz/model/renderer.py)."""
-    n_samples: int | None = None
+    n_samples: int | None = 64
     """Samples per ray (None: the field's default)."""
     grid_res: tuple[int, ...] | None = None
     """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""

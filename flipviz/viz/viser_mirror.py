@@ -168,7 +168,7 @@ class MirrorLesson:
             links = np.stack([np.stack([a.center, b.center]) for a, b in zip(self.inputs, cams)]).astype(np.float32)
             scene.add_line_segments("/preview/links", links, PREVIEW_COLOR, thickness=1.5, thickness_units="screen")
         self._set_preview_visible()
-        p, n = plane.point, plane.normal
+        p, n = np.round(plane.point, 2) + 0.0, np.round(plane.normal, 2) + 0.0  # + 0.0: no "-0.00"
         same = self.train_plane is not None and np.allclose(plane.point, self.train_plane.point) and np.allclose(
             plane.normal, self.train_plane.normal
         )

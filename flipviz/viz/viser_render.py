@@ -14,15 +14,17 @@ refresh every `refresh_s` while training runs.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 import traceback
 from dataclasses import dataclass, field
 from typing import Callable, Hashable
 
+import numpy as np
 import viser
 
-from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, visualize_output
+from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, pull_inside, visualize_output
 
 
 @dataclass
@@ -124,6 +126,7 @@ class ViewportRenderer:
         self,
         worker: RenderWorker,
         render: Callable[..., dict | None],
+        sphere: Callable[[], tuple[np.ndarray, float] | None],
         is_training: Callable[[], bool],
         low_width: int = 64,
         full_width: int = 192,
@@ -132,6 +135,7 @@ class ViewportRenderer:
     ) -> None:
         self.worker = worker
         self.render = render  # (camera, outputs) -> dict or None when no model is ready
+        self.sphere = sphere  # () -> (centre, radius) of the camera sphere, or None
         self.is_training = is_training
         self.low_width, self.full_width = int(low_width), int(full_width)
         self.settle_s, self.refresh_s = float(settle_s), float(refresh_s)
@@ -143,9 +147,9 @@ class ViewportRenderer:
         view = ClientView(client)
         with self._lock:
             self.clients[client.client_id] = view
-        ctx = folder if folder is not None else _nullcontext()
+        ctx = folder if folder is not None else contextlib.nullcontext()
         with self._gui_lock, ctx:  # a container is entered by one thread at a time
-            cb = client.gui.add_checkbox("Render my view", True, hint="Background = the current model seen from your camera")
+            cb = client.gui.add_checkbox("Render my view", True, hint="Background: the model seen from your camera")
             dd = client.gui.add_dropdown("My view shows", OUTPUTS, initial_value="RGB")
         view.gui = [cb, dd]
 
@@ -163,7 +167,7 @@ class ViewportRenderer:
             self.request(client.client_id)
 
         @client.camera.on_update
-        def _(_) -> None:
+        async def _(_) -> None:  # async: runs on viser's event loop, no thread hop per camera message
             view.last_move = time.monotonic()
             self.request(client.client_id)
 
@@ -197,7 +201,11 @@ class ViewportRenderer:
         moving = time.monotonic() - view.last_move < self.settle_s
         width = self.low_width if moving else self.full_width
         height = max(8, round(width / aspect))
-        out = self.render(camera_from_viser(wxyz, pos, fov, width, height), outputs=("rgb", "depth", "opacity", "beta2"))
+        cam = camera_from_viser(wxyz, pos, fov, width, height)
+        sphere = self.sphere()
+        if sphere is not None:
+            cam = pull_inside(cam, *sphere)
+        out = self.render(cam, outputs=("rgb", "depth", "opacity", "beta2"))
         if out is None or client_id not in self.clients:
             return
         view.client.scene.set_background_image(visualize_output(out, view.output), format="jpeg", jpeg_quality=85)
@@ -206,11 +214,3 @@ class ViewportRenderer:
             self.request(client_id, delay=self.settle_s)
         elif self.is_training():  # keep the still view up to date with training
             self.request(client_id, delay=self.refresh_s)
-
-
-class _nullcontext:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return False

@@ -26,7 +26,9 @@ GROUPS: dict[str, tuple[str, tuple[int, int, int]]] = {
     "sphere": ("fitted sphere", (120, 160, 255)),
     "true_plane": ("true symmetry plane", (30, 170, 60)),
 }
-KIND_GROUP = {"input": "inputs", "test": "tests", "mirror_init": "mirrors", "mirror_true": "mirror_true", "upper": "upper"}
+KIND_GROUP = {
+    "input": "inputs", "test": "tests", "mirror_init": "mirrors", "mirror_true": "mirror_true", "upper": "upper"
+}  # fmt: skip
 MAX_TRAJ_POINTS = 200
 
 
