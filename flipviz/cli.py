@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -32,17 +33,29 @@ class ExportScene:
 
 
 def _train(cfg: TrainConfig) -> int:
-    from flipviz.training.run import resolve_run_dir, train
+    from flipviz.training.run import train
+    from flipviz.training.trainer import default_run_dir, scene_label
 
-    cfg.out = resolve_run_dir(cfg)
-    observers = []
-    if not cfg.no_rrd:
+    if cfg.out is None:
+        cfg.out = default_run_dir(cfg, scene_label(cfg))
+    rerun = None
+    if not cfg.no_rrd or cfg.rerun_serve:
         from flipviz.viz.rerun_observer import make_rerun_observer
 
-        observers.append(make_rerun_observer(cfg, cfg.out))
-    metrics = train(cfg, extra_observers=observers)
-    print(f"run folder: {cfg.out}")
+        rerun = make_rerun_observer(cfg, cfg.out)
+    metrics = train(cfg, extra_observers=[rerun] if rerun else [])
+    if rerun is not None and cfg.rerun_serve:
+        _serve_until_interrupted(rerun.viewer_url)
+        rerun.close()
     return 0 if metrics.get("status", "finished") in ("finished", "stopped") else 1
+
+
+def _serve_until_interrupted(url: str | None) -> None:
+    print(f"training done; Rerun web viewer still at {url} (Ctrl-C to quit)", flush=True)
+    try:
+        threading.Event().wait()
+    except KeyboardInterrupt:
+        pass
 
 
 def _export(cmd: ExportScene) -> int:

@@ -60,6 +60,9 @@ def ray_box(origins: Tensor, dirs: Tensor, bbox: Tensor) -> tuple[Tensor, Tensor
     return t_in, t_out
 
 
+MIN_DEPTH = 0.05  # closest sample to a camera at inference (world units)
+
+
 def render_rays(
     field: Field,
     origins: Tensor,
@@ -91,11 +94,14 @@ def render_rays(
     sigma_mean = torch.zeros(R, device=dev, dtype=dtype)
     beta2 = torch.full((R,), beta_min**2, device=dev, dtype=dtype)
 
-    # Rays that miss the box (or whose box segment lies outside [near, far]) stay background.
+    # Rays that miss the box stay background. Training samples [near, far] (the cameras' orbit);
+    # any other render (novel or browser cameras, near or far) samples the whole box segment.
     with torch.no_grad():
         t_in, t_out = ray_box(origins, dirs, bbox)
-        t_in = t_in.clamp_min(near)
-        t_out = t_out.clamp_max(far)
+        if training:
+            t_in, t_out = t_in.clamp_min(near), t_out.clamp_max(far)
+        else:
+            t_in = t_in.clamp_min(MIN_DEPTH)
         hit = torch.nonzero(t_out > t_in + 1e-6).squeeze(-1)
     out = {"rgb": rgb, "depth": depth, "opacity": opacity, "sigma_mean": sigma_mean}
     if with_beta:

@@ -94,7 +94,7 @@ class App(Observer):
         self._ui_thread = threading.Thread(target=self._ui_loop, name="flipviz-ui", daemon=True)
         self._build_gui()
         self.views = ViewportRenderer(
-            self.worker, self.render, self.sphere, lambda: self.status == "running",
+            self.worker, self.render, lambda: self.status == "running",
             low_width=max(32, cfg.view_width // 3), full_width=cfg.view_width,
         )  # fmt: skip
         self.server.on_client_connect(self._on_connect)
@@ -244,11 +244,6 @@ class App(Observer):
         if self._ui_thread.is_alive():
             self._ui_thread.join(timeout=5.0)
         self.server.stop()
-
-    def sphere(self) -> tuple[np.ndarray, float] | None:
-        """(centre, radius) of the least-squares sphere of the current run's input cameras."""
-        setup = self.setup
-        return None if setup is None else (np.asarray(setup.sphere_center), float(setup.sphere_radius))
 
     def render(self, camera: Camera, outputs=("rgb", "depth", "opacity", "beta2")) -> dict | None:
         """Thread-safe render of the current model (None while no model exists)."""

@@ -40,28 +40,6 @@ def camera_from_viser(wxyz, position, fov_y: float, width: int, height: int, nam
     return Camera(c2w_from_viser(wxyz, position), int(width), int(height), float(focal), name)
 
 
-def pull_inside(cam: Camera, center: np.ndarray, radius: float) -> Camera:
-    """A camera outside the camera sphere, moved along its axis onto the sphere, focal scaled to match.
-
-    The model only samples between the scene's near and far bounds (made for cameras on the
-    sphere), so a browser view from far away would render empty. This 'dolly zoom' keeps the
-    framing of the plane through the sphere centre: moving forward by delta and scaling the
-    focal length by (s - delta) / s, where s is the distance along the axis to that plane.
-    """
-    c, f = cam.center, -cam.c2w[:3, 2]  # OpenGL: the camera looks along -z
-    s = float((np.asarray(center) - c) @ f)
-    dist = float(np.linalg.norm(np.asarray(center) - c))
-    if dist <= radius or s <= 0.0:
-        return cam
-    off = dist**2 - s**2  # squared distance of the centre from the camera axis
-    if off >= radius**2:
-        return cam
-    delta = s - math.sqrt(radius**2 - off)  # |c + delta f - center| = radius, on the near side
-    c2w = cam.c2w.copy()
-    c2w[:3, 3] = c + delta * f
-    return Camera(c2w, cam.width, cam.height, cam.focal * (s - delta) / s, cam.name)
-
-
 def plane_wxyz(normal: np.ndarray) -> np.ndarray:
     """Rotation whose local +z axis is `normal` (the plane gizmo's frame)."""
     z = np.asarray(normal, dtype=np.float64)

@@ -14,7 +14,6 @@ from flipviz.viz.viser_common import (
     camera_from_viser,
     error_map,
     psnr,
-    pull_inside,
     to_uint8,
     to_viser_pose,
     upscale,
@@ -103,8 +102,7 @@ class NovelCameras:
         cam = self.camera(name)
         if cam is None:
             return
-        sphere = self.app.sphere()
-        out = self.app.render(pull_inside(cam, *sphere) if sphere is not None else cam)
+        out = self.app.render(cam)
         if out is None:
             self.status.content = "_No model yet: training is starting._"
             return

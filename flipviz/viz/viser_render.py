@@ -24,7 +24,7 @@ from typing import Callable, Hashable
 import numpy as np
 import viser
 
-from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, pull_inside, visualize_output
+from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, visualize_output
 
 
 @dataclass
@@ -126,7 +126,6 @@ class ViewportRenderer:
         self,
         worker: RenderWorker,
         render: Callable[..., dict | None],
-        sphere: Callable[[], tuple[np.ndarray, float] | None],
         is_training: Callable[[], bool],
         low_width: int = 64,
         full_width: int = 192,
@@ -135,7 +134,6 @@ class ViewportRenderer:
     ) -> None:
         self.worker = worker
         self.render = render  # (camera, outputs) -> dict or None when no model is ready
-        self.sphere = sphere  # () -> (centre, radius) of the camera sphere, or None
         self.is_training = is_training
         self.low_width, self.full_width = int(low_width), int(full_width)
         self.settle_s, self.refresh_s = float(settle_s), float(refresh_s)
@@ -202,9 +200,6 @@ class ViewportRenderer:
         width = self.low_width if moving else self.full_width
         height = max(8, round(width / aspect))
         cam = camera_from_viser(wxyz, pos, fov, width, height)
-        sphere = self.sphere()
-        if sphere is not None:
-            cam = pull_inside(cam, *sphere)
         out = self.render(cam, outputs=("rgb", "depth", "opacity", "beta2"))
         if out is None or client_id not in self.clients:
             return
