@@ -18,16 +18,7 @@ SMALL_GRID = dict(grid_res=(16, 24), upsample_at=(0.5,), n_samples=32, occ_start
 SMALL_NERF = dict(kind="nerf", nerf_depth=2, nerf_width=32, nerf_pe=4, nerf_dir_pe=2, n_samples=16, nerf_lr=5e-3)
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path / "cache"))
-    torch.manual_seed(0)
-    # One thread: on this shared, oversubscribed 2-core machine two OpenMP threads made these
-    # small steps ~28x slower (measured: 150 grid steps 4.4 s with 1 thread, 122 s with 2).
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("small_torch")
 
 
 @pytest.fixture(scope="module")

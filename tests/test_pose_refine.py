@@ -16,16 +16,7 @@ from flipviz.model.losses import photometric_mse
 from flipviz.model.quickfit import RayBank, fit
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path / "cache"))
-    torch.manual_seed(0)
-    # One thread: on this shared, oversubscribed 2-core machine two OpenMP threads made these
-    # small steps ~28x slower (measured: 150 grid steps 4.4 s with 1 thread, 122 s with 2).
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("small_torch")
 
 
 def hat(xi: np.ndarray) -> np.ndarray:
