@@ -1,6 +1,6 @@
 """Engine benchmark (a script, not a test): is the grid engine fast enough to teach with?
 
-For the built-in chair and the real lego (when /work/shared/data/nerf_synthetic/lego or --lego
+For the built-in chair and the real lego (when $FLIPVIZ_LEGO, ../shared/data/nerf_synthetic/lego or --lego
 exists) at 100 px, protocol configuration 1, method Flip+U:
   - seconds per training step,
   - seconds of training to reach the final unobserved-view PSNR within 0.5 dB,
@@ -30,7 +30,7 @@ from flipviz.training.config import TrainConfig
 from flipviz.training.events import ImagesEvent, Observer
 from flipviz.training.trainer import Trainer
 
-LEGO = Path("/work/shared/data/nerf_synthetic/lego")
+LEGO = Path(os.environ.get("FLIPVIZ_LEGO", Path(__file__).resolve().parents[2] / "shared/data/nerf_synthetic/lego"))
 
 
 class Curve(Observer):

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -17,3 +20,19 @@ def small_torch(tmp_path, monkeypatch):
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def find_lego() -> Path | None:
+    """The NeRF-synthetic lego test orbit: $FLIPVIZ_LEGO, or ../shared beside the checkout."""
+    env = os.environ.get("FLIPVIZ_LEGO")
+    p = Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data" / "nerf_synthetic" / "lego"
+    return p if (p / "transforms_test.json").is_file() else None
+
+
+@pytest.fixture
+def lego_dir() -> Path:
+    """The lego folder; the test is skipped cleanly when it is absent (a user's fresh clone)."""
+    p = find_lego()
+    if p is None:
+        pytest.skip("NeRF-synthetic lego not found (set FLIPVIZ_LEGO)")
+    return p

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 import tyro
 
-from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.geometry import mirror_cameras_for_plane
 from flipviz.geometry.sphere import Sphere

@@ -1,7 +1,6 @@
 """The Blender / NeRF-synthetic format: reading lego, bad inputs, export and round trip."""
 
 import json
-import os
 from pathlib import Path
 
 import cv2
@@ -12,13 +11,6 @@ from flipviz.data import DatasetError, export_scene, load_blender, load_builtin,
 from flipviz.data.protocol import RING_INDICES
 
 
-def lego_path() -> Path | None:
-    env = os.environ.get("FLIPVIZ_LEGO")
-    p = Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared/data/nerf_synthetic/lego"
-    return p if (p / "transforms_test.json").is_file() else None
-
-
-needs_lego = pytest.mark.skipif(lego_path() is None, reason="NeRF-synthetic lego not found (set FLIPVIZ_LEGO)")
 
 
 @pytest.fixture(autouse=True)
@@ -157,9 +149,8 @@ def test_export_scene_full_turn(tmp_path):
         assert np.abs(back.views[i].rgb - ref.views[i].rgb).max() <= 1.0 / 255 + 1e-6
 
 
-@needs_lego
-def test_lego():
-    scene = load_blender(lego_path())
+def test_lego(lego_dir: Path):
+    scene = load_blender(lego_dir)
     assert len(scene.views) == 200 and scene.resolution == (200, 200)
     v = scene.views[0]
     assert v.rgb.dtype == np.float32 and 0.0 <= v.rgb.min() and v.rgb.max() <= 1.0
@@ -172,7 +163,7 @@ def test_lego():
     assert [w.index for w in split.uppers] == [i + 1 for i in RING_INDICES[8:]]
     assert all(w.rgb.shape == (200, 200, 3) for w in split.inputs + split.tests + split.uppers)
     # downscaled load = area average of the composited full-resolution image
-    small = load_blender(lego_path(), res=50, indices=[0, 1])
+    small = load_blender(lego_dir, res=50, indices=[0, 1])
     assert sorted(small.views) == [0, 1] and small.resolution == (50, 50)
     ref = v.rgb.reshape(50, 4, 50, 4, 3).mean(axis=(1, 3))
     assert np.abs(small.views[0].rgb - ref).max() < 1e-5

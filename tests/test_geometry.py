@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -97,15 +96,8 @@ def test_sphere_fit_errors():
         fit_sphere(np.zeros((5, 2)))
 
 
-def lego_dir() -> Path:
-    env = os.environ.get("FLIPVIZ_LEGO")
-    return Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nerf_synthetic" / "lego"
-
-
-def test_lego_orbit_sphere_radius():
-    path = lego_dir()
-    if not (path / "transforms_test.json").is_file():
-        pytest.skip(f"lego scene not found at {path}")
+def test_lego_orbit_sphere_radius(lego_dir: Path):
+    path = lego_dir
     from flipviz.data.blender import load_blender
 
     scene = load_blender(path, split="test", res=None)

@@ -21,7 +21,6 @@ import traceback
 from dataclasses import dataclass, field
 from typing import Callable, Hashable
 
-import numpy as np
 import viser
 
 from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, visualize_output
