@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from flipviz.training.config import METHODS
+from flipviz.training.config import METHODS, TrainConfig
 
 
 @dataclass
@@ -23,9 +23,9 @@ class BenchConfig:
     """Protocol configurations: '1-8', '1,3,5' or '2'."""
     res: int = 100
     """Image width in pixels."""
-    steps: int = 3000
+    steps: int = TrainConfig.steps
     """Optimisation steps per run."""
-    batch_rays: int = 4096
+    batch_rays: int = TrainConfig.batch_rays
     """Rays per optimisation step."""
     field: Literal["grid", "nerf"] = "grid"
     """Radiance field of every run (grid: fast dense voxel grid; nerf: the paper's MLP)."""
