@@ -18,13 +18,13 @@ from flipviz.data.dataset import Plane
 from flipviz.geometry import mirror_cameras_for_plane
 from flipviz.geometry.sphere import Sphere
 from flipviz.viz.viser_app import App, AppConfig, train_config
+from flipviz.training.evaluate import psnr
 from flipviz.viz.viser_common import (
     c2w_from_viser,
     camera_from_viser,
     plane_from_pose,
     plane_to_arg,
     plane_wxyz,
-    psnr,
     to_viser_pose,
     upscale,
     visualize_output,

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from flipviz.data import SCENES, Camera, DatasetError, build_mesh, load_builtin, orbit_camera, render_view, symmetry_plane
-from flipviz.data.builtin import _cache_path, look_at
+from flipviz.data.builtin import _cache_path
+from flipviz.data.cameras import look_at
 from flipviz.data.protocol import protocol_indices
 from flipviz.data.raycast import LIGHT_DIR, render_mesh
 
@@ -146,7 +147,7 @@ def test_orbit_cameras():
         assert R[2, 1] > 0  # image up points up
     # focal from lego's camera_angle_x: 0.5 W / tan(0.5 angle)
     assert np.isclose(orbit_camera(0, 200).focal, 277.7777578)
-    assert np.allclose(look_at(np.array([0.0, 4.0, 0.0]))[:3, 0], [-1.0, 0.0, 0.0])
+    assert np.allclose(look_at(np.array([0.0, 4.0, 0.0]), np.zeros(3))[:3, 0], [-1.0, 0.0, 0.0])
 
 
 def test_load_builtin_and_cache(tmp_path):

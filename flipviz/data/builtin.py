@@ -17,7 +17,7 @@ from typing import Iterable
 
 import numpy as np
 
-from flipviz.data.cameras import Camera, View
+from flipviz.data.cameras import Camera, View, look_at
 from flipviz.data.dataset import DatasetError, SceneData
 from flipviz.data.protocol import protocol_indices
 from flipviz.data.raycast import render_mesh
@@ -31,25 +31,13 @@ RADIUS = 4.0
 NEAR, FAR = 2.0, 6.0
 
 
-def look_at(center: np.ndarray, target: np.ndarray = np.zeros(3), up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
-    """OpenGL camera-to-world matrix of a camera at `center` looking at `target` (camera -z axis)."""
-    z = np.asarray(center, float) - np.asarray(target, float)
-    z /= np.linalg.norm(z)
-    x = np.cross(up, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = x, y, z, center
-    return c2w
-
-
 def orbit_camera(index: int, res: int = 100) -> Camera:
     """The built-in orbit's camera number `index` at resolution res x res."""
     az = np.radians(90.0 + DEG_PER_INDEX * index)  # index 0 on +y, as on the NeRF-synthetic orbit
     el = np.radians(ELEVATION_DEG)
     center = RADIUS * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     focal = 0.5 * res / np.tan(0.5 * CAMERA_ANGLE_X)
-    return Camera(look_at(center), res, res, float(focal), name=f"r_{index}")
+    return Camera(look_at(center, np.zeros(3)), res, res, float(focal), name=f"r_{index}")
 
 
 _warm_lock = threading.Lock()

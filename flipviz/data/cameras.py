@@ -107,6 +107,37 @@ def rays_from_c2w(c2w: torch.Tensor, dirs_cam: torch.Tensor) -> tuple[torch.Tens
     return o, d
 
 
+WORLD_UP = np.array([0.0, 0.0, 1.0])
+
+
+def _unit(v: np.ndarray, what: str) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64).reshape(3)
+    n = float(np.linalg.norm(v))
+    if not np.isfinite(n) or n < 1e-12:
+        raise ValueError(f"{what} must be a non-zero finite vector, got {v.tolist()}")
+    return v / n
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP) -> np.ndarray:
+    """Paper Sec. IV-A: rotation from (c, at, up); c2w (4, 4) OpenGL, the camera looks at `target`.
+
+    z = normalize(eye - target), x = normalize(up x z), y = z x x. When `up` is parallel to the
+    viewing direction (camera straight above or below the target) x is taken along the world axis
+    least aligned with z, projected off z, so a proper pose is still returned.
+    """
+    eye = np.asarray(eye, dtype=np.float64).reshape(3)
+    z = _unit(eye - np.asarray(target, dtype=np.float64).reshape(3), "look_at: eye - target")
+    x = np.cross(_unit(up, "look_at: up"), z)
+    if np.linalg.norm(x) < 1e-9:  # up parallel to the view axis: any horizontal x will do
+        a = np.eye(3)[int(np.argmin(np.abs(z)))]
+        x = a - (a @ z) * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = x, y, z, eye
+    return c2w
+
+
 @dataclass
 class View:
     """One image with its camera. `index` is its position on the source orbit (see protocol)."""

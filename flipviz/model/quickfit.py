@@ -14,7 +14,7 @@ import torch
 
 from flipviz.data.cameras import View, pixel_directions, rays_from_c2w
 from flipviz.model import RadianceModel
-from flipviz.model.losses import photometric_mse
+from flipviz.model.losses import photometric_mse, psnr
 from flipviz.model.pose_refine import PoseRefiner
 
 
@@ -90,6 +90,5 @@ def image_psnr(model: RadianceModel, views: list[View]) -> float:
     vals = []
     for v in views:
         out = model.render_image(v.camera)
-        mse = float(np.mean((out["rgb"] - v.rgb) ** 2))
-        vals.append(-10.0 * np.log10(max(mse, 1e-12)))
+        vals.append(psnr(np.mean((out["rgb"] - v.rgb) ** 2)))
     return float(np.mean(vals))

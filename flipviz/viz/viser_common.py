@@ -129,12 +129,6 @@ def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     return colormap(e, "inferno", 0.0, 0.5)
 
 
-def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
-    """PSNR = -10 log10(MSE) for images in [0, 1]."""
-    mse = float(np.mean((np.asarray(pred, np.float64)[..., :3] - np.asarray(gt, np.float64)[..., :3]) ** 2))
-    return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
-
-
 def resize_nearest(img: np.ndarray, width: int, height: int) -> np.ndarray:
     """Nearest-neighbour resize (H, W, ...) -> (height, width, ...)."""
     h, w = img.shape[:2]

@@ -22,11 +22,11 @@ from flipviz.data.dataset import Plane
 from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
 from flipviz.geometry.sphere import Sphere
 from flipviz.training.events import ImagesEvent, SetupEvent
+from flipviz.training.evaluate import psnr
 from flipviz.viz.viser_common import (
     plane_from_pose,
     plane_to_arg,
     plane_wxyz,
-    psnr,
     resize_nearest,
     thumbnail,
     to_viser_pose,

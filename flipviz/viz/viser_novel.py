@@ -9,11 +9,11 @@ import numpy as np
 import viser
 
 from flipviz.data.cameras import Camera
+from flipviz.training.evaluate import psnr
 from flipviz.viz.viser_common import (
     OUTPUTS,
     camera_from_viser,
     error_map,
-    psnr,
     to_uint8,
     to_viser_pose,
     upscale,

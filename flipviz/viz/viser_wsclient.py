@@ -19,6 +19,9 @@ import viser
 import websockets
 import zstandard
 
+from flipviz.data.cameras import look_at
+from flipviz.viz.viser_common import to_viser_pose
+
 _zstd = zstandard.ZstdDecompressor()
 
 
@@ -30,15 +33,9 @@ def decode_frame(raw: bytes) -> list[dict]:
     return list(msgspec.msgpack.decode(inner)["messages"])
 
 
-def wxyz_look_at(position: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple[float, ...]:
-    """Quaternion (w, x, y, z) of an OpenCV camera (+z forward, -y up) at `position` looking at `target`."""
-    z = np.asarray(target, float) - np.asarray(position, float)
-    z /= np.linalg.norm(z)
-    x = np.cross(z, -np.asarray(up, float))
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z], 1)
-    return tuple(float(v) for v in viser.transforms.SO3.from_matrix(R).wxyz)
+def wxyz_look_at(position: np.ndarray, target: np.ndarray) -> tuple[float, ...]:
+    """Quaternion (w, x, y, z) of viser's (OpenCV) camera at `position` looking at `target`, z up."""
+    return tuple(float(v) for v in to_viser_pose(look_at(position, target))[0])
 
 
 class ViserTestClient:
