@@ -43,10 +43,13 @@ def _train(cfg: TrainConfig) -> int:
         from flipviz.viz.rerun_observer import make_rerun_observer
 
         rerun = make_rerun_observer(cfg, cfg.out)
-    metrics = train(cfg, extra_observers=[rerun] if rerun else [])
-    if rerun is not None and cfg.rerun_serve:
-        _serve_until_interrupted(rerun.viewer_url)
-        rerun.close()
+    try:
+        metrics = train(cfg, extra_observers=[rerun] if rerun else [])
+        if rerun is not None and cfg.rerun_serve:
+            _serve_until_interrupted(rerun.viewer_url)
+    finally:  # also on Ctrl-C during setup: finalise whatever the recording already holds
+        if rerun is not None:
+            rerun.close()
     return 0 if metrics.get("status", "finished") in ("finished", "stopped") else 1
 
 
@@ -88,6 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     except (DatasetError, ValueError) as e:  # bad input: one line, no traceback
         print(f"flipviz: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C outside the training loop (setup, loading): no traceback
+        print("flipviz: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

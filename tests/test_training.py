@@ -143,6 +143,33 @@ def test_nan_stops_cleanly_and_keeps_last_good_checkpoint(chair, tmp_path):
     assert np.all(np.isfinite(tr2.render(tr2.split.tests[0].camera)["rgb"]))
 
 
+def test_ctrl_c_in_the_loop_and_in_the_final_evaluation(chair, tmp_path):
+    """Ctrl-C stops at a step boundary; a second one during the evaluation skips it; checkpoint kept."""
+    cfg = TrainConfig(method="flip+u", steps=40, log_every=5, checkpoint_every=0, images_every=0,
+                      out=tmp_path / "run", **TINY)  # fmt: skip
+    tr = Trainer(cfg, scene=chair)
+
+    class CtrlC(Observer):
+        def on_step(self, e):
+            if e.step == 15:
+                raise KeyboardInterrupt
+
+    real_evaluate = tr.evaluate
+
+    def interrupted_evaluate(*a, **k):
+        real_evaluate(write=False)  # part of the work happens, then the user presses Ctrl-C again
+        raise KeyboardInterrupt
+
+    tr.evaluate = interrupted_evaluate
+    rec = Recorder()
+    tr.add_observer(CtrlC())
+    tr.add_observer(rec)
+    m = tr.run()
+    assert m["status"] == "stopped" and rec.end is not None and rec.end.status == "stopped"
+    assert "final evaluation" in m["message"] and "\n" not in m["message"]
+    assert load_checkpoint(tmp_path / "run")["step"] == tr.step == 15
+
+
 def test_pause_resume_stop(chair, tmp_path):
     cfg = TrainConfig(method="bl", steps=100000, images_every=0, out=tmp_path / "run", eval_on_stop=False, **TINY)
     tr = Trainer(cfg, scene=chair)

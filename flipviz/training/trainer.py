@@ -381,8 +381,12 @@ class Trainer:
         if status in ("finished", "stopped"):
             self.save_checkpoint()
             if status == "finished" or cfg.eval_on_stop:
-                metrics = self.evaluate()
-                self._emit("on_images", self._images_event())
+                try:
+                    metrics = self.evaluate()
+                    self._emit("on_images", self._images_event())
+                except KeyboardInterrupt:  # a second Ctrl-C skips the evaluation, keeps the checkpoint
+                    status, message = "stopped", f"interrupted during the final evaluation; checkpoint kept in {self.run_dir}"
+                    metrics = {}
         metrics = dict(metrics, status=status, message=message, steps=self.step, run_dir=str(self.run_dir))
         self.last_metrics = metrics
         self._emit("on_end", EndEvent(self.step, status, message, metrics))
