@@ -12,7 +12,7 @@ import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Callable
 
 import tyro
 
@@ -70,24 +70,36 @@ def _export(cmd: ExportScene) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from flipviz.bench import BenchConfig, run_bench
-    from flipviz.viz.viser_app import AppConfig, run_app
+    from flipviz.bench import BenchConfig
+    from flipviz.viz.viser_app import AppConfig
 
     cmd = tyro.extras.subcommand_cli_from_dict(
         {"train": TrainConfig, "app": AppConfig, "bench": BenchConfig, "export-scene": ExportScene},
         args=argv,
         description=__doc__,
     )
+    return guarded(lambda: _dispatch(cmd))
+
+
+def _dispatch(cmd) -> int:
+    from flipviz.bench import BenchConfig, run_bench
+    from flipviz.viz.viser_app import AppConfig, run_app
+
+    if isinstance(cmd, AppConfig):  # AppConfig extends TrainConfig: test it first
+        run_app(cmd)
+        return 0
+    if isinstance(cmd, TrainConfig):
+        return _train(cmd)
+    if isinstance(cmd, BenchConfig):
+        print(f"results: {run_bench(cmd)}")
+        return 0
+    return _export(cmd)
+
+
+def guarded(fn: Callable[[], int]) -> int:
+    """Run a command; bad input is one line on stderr (exit 2), Ctrl-C outside a training loop exit 130."""
     try:
-        if isinstance(cmd, AppConfig):  # AppConfig extends TrainConfig: test it first
-            run_app(cmd)
-            return 0
-        if isinstance(cmd, TrainConfig):
-            return _train(cmd)
-        if isinstance(cmd, BenchConfig):
-            print(f"results: {run_bench(cmd)}")
-            return 0
-        return _export(cmd)
+        return fn()
     except (DatasetError, ValueError) as e:  # bad input: one line, no traceback
         print(f"flipviz: error: {e}", file=sys.stderr)
         return 2

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -35,8 +37,9 @@ def test_cli_subcommands_help() -> None:
         assert sub in r.stdout
 
 
-def test_missing_dataset_is_a_one_line_error(tmp_path: Path) -> None:
-    r = _run("-m", "flipviz.cli", "train", "--data", str(tmp_path / "nope"), "--steps", "1", "--no-rrd")
+@pytest.mark.parametrize("entry", [("-m", "flipviz.cli", "train"), ("app.py",)])
+def test_missing_dataset_is_a_one_line_error(tmp_path: Path, entry: tuple[str, ...]) -> None:
+    r = _run(*entry, "--data", str(tmp_path / "nope"), "--steps", "1", "--no-rrd")
     assert r.returncode == 2
     err = r.stderr.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("flipviz: error:"), r.stderr

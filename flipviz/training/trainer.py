@@ -55,17 +55,9 @@ def scene_label(cfg: TrainConfig, scene: SceneData | None = None) -> str:
 
 def load_scene_for(cfg: TrainConfig) -> SceneData:
     """The scene of a run: a Blender folder (cfg.data) or a built-in scene, at cfg.res pixels."""
-    import flipviz.data as data
+    from flipviz.data import load_scene
 
-    if hasattr(data, "load_scene"):
-        return data.load_scene(cfg.scene, cfg.data, cfg.res)
-    if cfg.data is not None:
-        from flipviz.data.blender import load_blender
-
-        return load_blender(cfg.data, "test", cfg.res)
-    from flipviz.data.builtin import load_builtin
-
-    return load_builtin(cfg.scene, cfg.res)
+    return load_scene(cfg.scene, cfg.data, cfg.res)
 
 
 def default_run_dir(cfg: TrainConfig, scene_name: str) -> Path:

@@ -22,7 +22,10 @@ from pathlib import Path
 import numpy as np
 import viser
 
+from flipviz.data import SceneData, load_scene
 from flipviz.data.cameras import Camera
+from flipviz.data.protocol import make_split
+from flipviz.geometry.mirror import make_mirror_set
 from flipviz.training.config import METHODS, TrainConfig
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.viz.viser_mirror import MirrorLesson
@@ -54,6 +57,17 @@ def train_config(cfg: TrainConfig) -> TrainConfig:
     return TrainConfig(**{f.name: getattr(cfg, f.name) for f in fields(TrainConfig)})
 
 
+def _scene_key(cfg: TrainConfig) -> tuple:
+    return (cfg.scene, str(cfg.data) if cfg.data is not None else None, cfg.res)
+
+
+def check_run_input(cfg: TrainConfig) -> SceneData:
+    """Load the scene and build its mirror plane before serving: bad input fails in one line, at once."""
+    scene = load_scene(cfg.scene, cfg.data, cfg.res)
+    make_mirror_set(make_split(scene, cfg.config).inputs, cfg.mirror_plane, scene.symmetry_plane)
+    return scene
+
+
 def _fmt_time(s: float) -> str:
     s = max(0, int(round(s)))
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
@@ -62,8 +76,9 @@ def _fmt_time(s: float) -> str:
 class App(Observer):
     """Viser server + background trainer + GUI. Start with `start()`, end with `stop()`."""
 
-    def __init__(self, cfg: AppConfig) -> None:
+    def __init__(self, cfg: AppConfig, scene: SceneData | None = None) -> None:
         self.cfg = cfg
+        self._preloaded = (_scene_key(cfg), scene) if scene is not None else None  # for the first run
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, label="flipviz", verbose=False)
         self._set_initial_camera(np.zeros(3), 4.0)
         self.port = self.server.get_port()  # the port actually bound (viser moves on when it is busy)
@@ -173,8 +188,9 @@ class App(Observer):
         from flipviz.training.trainer import Trainer
 
         tcfg = train_config(cfg)
+        scene = self._preloaded[1] if self._preloaded and self._preloaded[0] == _scene_key(cfg) else None
         try:
-            trainer = Trainer(tcfg)
+            trainer = Trainer(tcfg, scene=scene)
         except Exception as e:  # bad data / plane: show it, keep serving
             self.status, self.message = "error", f"{type(e).__name__}: {e}"
             log.error("could not start training: %s", self.message)
@@ -368,7 +384,7 @@ class App(Observer):
 def run_app(cfg: AppConfig) -> None:
     """Serve the app and train until Ctrl-C (training keeps being served after it finishes)."""
     logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
-    app = App(cfg).start()
+    app = App(cfg, scene=check_run_input(cfg)).start()
     print(f"[flipviz] app running at {app.url}  (Ctrl-C to stop)", flush=True)
     if cfg.open_browser:
         webbrowser.open(app.url)
