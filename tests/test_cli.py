@@ -45,7 +45,7 @@ def test_missing_dataset_is_a_one_line_error(tmp_path: Path, entry: tuple[str, .
     assert len(err) == 1 and err[0].startswith("flipviz: error:"), r.stderr
 
 
-def test_ctrl_c_during_setup_is_one_line(tmp_path: Path, monkeypatch) -> None:
+def test_ctrl_c_during_setup_is_one_line(tmp_path: Path, monkeypatch, capsys) -> None:
     """Ctrl-C while the scene loads (before the training loop): one line, exit 130, no traceback."""
     from flipviz import cli
     from flipviz.training import trainer
@@ -56,3 +56,4 @@ def test_ctrl_c_during_setup_is_one_line(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr(trainer.Trainer, "__init__", interrupted)
     code = cli.main(["train", "--scene", "chair", "--steps", "1", "--out", str(tmp_path / "run")])
     assert code == 130
+    assert capsys.readouterr().err == "flipviz: interrupted\n"

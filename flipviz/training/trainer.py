@@ -377,7 +377,8 @@ class Trainer:
                     metrics = self.evaluate()
                     self._emit("on_images", self._images_event())
                 except KeyboardInterrupt:  # a second Ctrl-C skips the evaluation, keeps the checkpoint
-                    status, message = "stopped", f"interrupted during the final evaluation; checkpoint kept in {self.run_dir}"
+                    status = "stopped"
+                    message = f"interrupted during the final evaluation; checkpoint kept in {self.run_dir}"
                     metrics = {}
         metrics = dict(metrics, status=status, message=message, steps=self.step, run_dir=str(self.run_dir))
         self.last_metrics = metrics
