@@ -265,9 +265,7 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
     it had started are recorded as failed and the rest go on in a fresh pool."""
     import multiprocessing as mp
 
-    ctx = mp.get_context("spawn")
-    # Spinning OpenMP threads collapse (measured 10x slower) when the CPU is oversubscribed.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # inherited by the spawned workers
+    ctx = mp.get_context("spawn")  # workers inherit OMP_WAIT_POLICY=PASSIVE (set in flipviz/__init__.py)
     todo = list(tasks)
     while todo:
         round_start = time.time()

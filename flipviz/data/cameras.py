@@ -110,7 +110,8 @@ def rays_from_c2w(c2w: torch.Tensor, dirs_cam: torch.Tensor) -> tuple[torch.Tens
 WORLD_UP = np.array([0.0, 0.0, 1.0])
 
 
-def _unit(v: np.ndarray, what: str) -> np.ndarray:
+def unit_vector(v: np.ndarray, what: str) -> np.ndarray:
+    """v / |v| as float64 (3,); ValueError naming `what` when v is zero or not finite."""
     v = np.asarray(v, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(v))
     if not np.isfinite(n) or n < 1e-12:
@@ -126,8 +127,8 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP) -> n
     least aligned with z, projected off z, so a proper pose is still returned.
     """
     eye = np.asarray(eye, dtype=np.float64).reshape(3)
-    z = _unit(eye - np.asarray(target, dtype=np.float64).reshape(3), "look_at: eye - target")
-    x = np.cross(_unit(up, "look_at: up"), z)
+    z = unit_vector(eye - np.asarray(target, dtype=np.float64).reshape(3), "look_at: eye - target")
+    x = np.cross(unit_vector(up, "look_at: up"), z)
     if np.linalg.norm(x) < 1e-9:  # up parallel to the view axis: any horizontal x will do
         a = np.eye(3)[int(np.argmin(np.abs(z)))]
         x = a - (a @ z) * z

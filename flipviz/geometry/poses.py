@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flipviz.data.cameras import WORLD_UP, _unit, look_at  # noqa: F401  (look_at: the paper's pose step)
+from flipviz.data.cameras import look_at, unit_vector  # noqa: F401  (look_at: the paper's pose step)
 
 
 def rotation_angle_deg(R1: np.ndarray, R2: np.ndarray) -> float:
@@ -28,5 +28,5 @@ def is_proper_rotation(R: np.ndarray, atol: float = 1e-6) -> bool:
 
 def reflection_matrix(normal: np.ndarray) -> np.ndarray:
     """Householder reflection M = I - 2 n n^T about the plane with normal n through the origin."""
-    n = _unit(normal, "reflection normal")
+    n = unit_vector(normal, "reflection normal")
     return np.eye(3) - 2.0 * np.outer(n, n)

@@ -1,12 +1,10 @@
 """The model layer: radiance fields, volume rendering, BARF-style pose refinement, losses.
 
-API changes / additions (for the trainer):
+What the trainer relies on:
 - `regulariser()` = TV on the grids + w_entropy * opacity entropy of the rays rendered with
   training=True since its last call: call it once per step, after render_rays.
 - `adjust_lr(opt, step, total_steps)` (model) and `adjust_lr(opt, step)` (PoseRefiner) apply the
   exponential learning-rate decays; `render_rays(..., n_samples=None)` may override the count.
-- Threads: on this oversubscribed 2-core machine `torch.set_num_threads(1)` made grid training
-  ~28x faster than 2 threads (OpenMP spin-waiting); consider it in the trainer / CLI.
 
 Training loop, as the trainer uses it::
 
