@@ -2,7 +2,7 @@
 
     flipviz train --scene chair --method flip+u --config 3
     flipviz app --scene mug                  (same as `python app.py --scene mug`)
-    flipviz bench --scenes chair,lego --data-root ../shared/data/nerf_synthetic
+    flipviz bench --scenes chair,lego --data-root path/to/nerf_synthetic
     flipviz export-scene chair out/chair
 """
 
@@ -16,7 +16,7 @@ from typing import Annotated, Callable
 
 import tyro
 
-from flipviz.data.dataset import DatasetError
+from flipviz.errors import UserError
 from flipviz.training.config import TrainConfig
 
 
@@ -32,19 +32,36 @@ class ExportScene:
     """Image width in pixels."""
 
 
-def _train(cfg: TrainConfig) -> int:
-    from flipviz.training.run import train
-    from flipviz.training.trainer import default_run_dir, scene_label
+def _run_train(cfg: TrainConfig) -> int:
+    """`flipviz train`: a progress bar, the Rerun recording, one summary line, how to open it."""
+    import logging
 
+    from flipviz.training.progress import ProgressObserver
+    from flipviz.training.run import train
+    from flipviz.training.trainer import default_run_dir
+
+    logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
     if cfg.out is None:
-        cfg.out = default_run_dir(cfg, scene_label(cfg))
+        cfg.out = default_run_dir(cfg)
     rerun = None
     if not cfg.no_rrd or cfg.rerun_serve:
         from flipviz.viz.rerun_observer import make_rerun_observer
 
         rerun = make_rerun_observer(cfg, cfg.out)
     try:
-        metrics = train(cfg, extra_observers=[rerun] if rerun else [])
+        _, metrics = train(cfg, [ProgressObserver()] + ([rerun] if rerun else []))
+        print(f"[flipviz] run folder: {cfg.out}")
+        if "psnr" in metrics:
+            lp = metrics.get("lpips")
+            lp_s = f"{lp:.3f}" if isinstance(lp, float) else f"{lp} ({metrics.get('lpips_reason', '')})"
+            print(
+                f"[flipviz] {metrics['status']}: unobserved views PSNR {metrics['psnr']:.2f} dB, "
+                f"SSIM {metrics['ssim']:.3f}, LPIPS {lp_s}, {metrics.get('train_seconds', 0):.0f} s, {metrics['steps']} steps"
+            )
+        elif metrics.get("message"):
+            print(f"[flipviz] {metrics['status']}: {metrics['message']}")
+        if rerun is not None and rerun.opts.path is not None:
+            print(f"[flipviz] recording: rerun {rerun.opts.path}")
         if rerun is not None and cfg.rerun_serve:
             _serve_until_interrupted(rerun.viewer_url)
     finally:  # also on Ctrl-C during setup: finalise whatever the recording already holds
@@ -89,7 +106,7 @@ def _dispatch(cmd) -> int:
         run_app(cmd)
         return 0
     if isinstance(cmd, TrainConfig):
-        return _train(cmd)
+        return _run_train(cmd)
     if isinstance(cmd, BenchConfig):
         print(f"results: {run_bench(cmd)}")
         return 0
@@ -97,11 +114,14 @@ def _dispatch(cmd) -> int:
 
 
 def guarded(fn: Callable[[], int]) -> int:
-    """Run a command; bad input is one line on stderr (exit 2), Ctrl-C outside a training loop exit 130."""
+    """Run a command; bad input is one line on stderr (exit 2), Ctrl-C outside a training loop exit 130.
+
+    Only `UserError` is bad input; any other exception is a bug and keeps its traceback.
+    """
     try:
         return fn()
-    except (DatasetError, ValueError) as e:  # bad input: one line, no traceback
-        print(f"flipviz: error: {e}", file=sys.stderr)
+    except UserError as e:  # bad input: one line, no traceback
+        print(f"flipviz: error: {e}".splitlines()[0], file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C outside the training loop (setup, loading): no traceback
         print("flipviz: interrupted", file=sys.stderr)

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from flipviz.data.protocol import make_split
-from flipviz.geometry import make_mirror_set
+from flipviz.errors import UserError
+from flipviz.training import flip
 from flipviz.training.config import METHODS, TrainConfig
 from flipviz.training.methods import build_training_set, method_spec
 
@@ -33,9 +34,10 @@ def chair(tmp_path_factory):
 
 def _ts(scene, **kw):
     cfg = TrainConfig(res=RES, **kw)
+    spec = method_spec(cfg)
     split = make_split(scene, cfg.config)
-    ms = make_mirror_set(split.inputs, cfg.mirror_plane, scene.symmetry_plane)
-    return build_training_set(cfg, split.inputs, ms.views, split.uppers)
+    mirrors = flip.mirrored_train_views(spec, flip.mirrored_views(cfg, split.inputs, scene.symmetry_plane))
+    return build_training_set(spec, split.inputs, mirrors, split.uppers)
 
 
 @pytest.mark.parametrize(
@@ -57,11 +59,11 @@ def test_training_sets(chair, method, n_views, n_refined, unc_kinds):
     b = ts.bank
     assert len(b) == n_views * RES * RES
     assert b.dirs_cam.shape == (len(b), 3) and b.rgb.shape == (len(b), 3)
-    # flags per ray agree with the flags of the ray's view
-    kinds = np.array([v.kind for v in ts.views])
-    cam = b.cam.numpy()
-    assert np.array_equal(b.mirrored.numpy(), kinds[cam] == "mirror")
-    assert np.array_equal(b.uncertain.numpy(), np.array([v.uncertain for v in ts.views])[cam])
+    # per-view flags agree with the views; each ray points at its view
+    assert ts.uncertain.tolist() == [v.uncertain for v in ts.views]
+    assert ts.refine_mask.tolist() == [v.refine for v in ts.views]
+    cam = b.view.numpy()
+    assert np.array_equal(np.bincount(cam), np.full(n_views, RES * RES))
     # targets are the views' images, row-major
     v0 = ts.views[-1]
     assert torch.equal(b.rgb[cam == len(ts.views) - 1], torch.from_numpy(v0.image.reshape(-1, 3)))
@@ -82,7 +84,7 @@ def test_ablation_switches(chair):
 
 
 def test_unknown_method():
-    with pytest.raises(ValueError, match="unknown method"):
+    with pytest.raises(UserError, match="unknown method"):
         method_spec(TrainConfig(method="nope"))  # type: ignore[arg-type]
     assert set(METHODS) == {"bl", "bl+u", "flip", "flip+u", "upper"}
 
@@ -100,8 +102,8 @@ def test_original_poses_fixed_unless_refine_all(chair, tmp_path, refine):
         tr._train_step()
     with torch.no_grad():
         now = tr.current_poses()
-    init = tr.ts.init_c2w
-    is_input = torch.tensor([v.kind == "input" for v in tr.ts.views])
+    init = tr.training.init_c2w
+    is_input = torch.tensor([v.kind == "input" for v in tr.training.views])
     moved = (now - init).abs().flatten(1).amax(1)
     assert bool((moved[~is_input] > 1e-6).all()), "mirrored poses must move under BA"
     if refine == "mirrored":

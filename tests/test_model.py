@@ -1,4 +1,4 @@
-"""Model layer: rendering maths, uncertainty loss, fitting, checkpoints, both fields."""
+"""Model layer: rendering maths, fitting, checkpoints, both fields (the objective: test_objective.py)."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import pytest
 import torch
 
 from flipviz.data.cameras import rays_from_c2w
-from flipviz.model import FieldConfig, RadianceModel
-from flipviz.model.losses import photometric_mse, uncertainty_nll
-from flipviz.model.quickfit import RayBank, fit, image_psnr
+from flipviz.data.rays import RayBank
+from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, RadianceModel
+from flipviz.model.fit import fit, image_psnr
 
 BBOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-SMALL_GRID = dict(grid_res=(16, 24), upsample_at=(0.5,), n_samples=32, occ_start=5, occ_every=5, tv_samples=1024)
-SMALL_NERF = dict(kind="nerf", nerf_depth=2, nerf_width=32, nerf_pe=4, nerf_dir_pe=2, n_samples=16, nerf_lr=5e-3)
+SMALL_GRID = dict(grid_res=(16, 24), upsample_at=(0.5,), occ_start=5, occ_every=5, tv_samples=1024)
+SMALL_NERF = dict(depth=2, width=32, pe=4, dir_pe=2, lr=5e-3)
 
 
 pytestmark = pytest.mark.usefixtures("small_torch")
@@ -49,10 +49,16 @@ def random_rays(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
     return o, d / d.norm(dim=-1, keepdim=True)
 
 
-def make(kind: str, with_beta: bool = True, **kw) -> RadianceModel:
-    base = dict(SMALL_GRID if kind == "grid" else SMALL_NERF)
-    base.update(kw)
-    return RadianceModel(FieldConfig(**base), BBOX, 0.5, 6.0, with_beta, "cpu")
+def small_config(kind: str, n_samples: int | None = None, **field_kw) -> ModelConfig:
+    if kind == "grid":
+        return ModelConfig(GridConfig(**{**SMALL_GRID, **field_kw}), n_samples=n_samples or 32)
+    return ModelConfig(NerfConfig(**{**SMALL_NERF, **field_kw}), n_samples=n_samples or 16)
+
+
+def make(kind: str, with_beta: bool = True, beta2_mode: str = "linear", beta_min: float = 0.1, **kw) -> RadianceModel:
+    cfg = small_config(kind, **kw)
+    cfg.beta2_mode, cfg.beta_min = beta2_mode, beta_min  # type: ignore[assignment]
+    return RadianceModel(cfg, BBOX, 0.5, 6.0, with_beta, "cpu")
 
 
 def bump_density(model: RadianceModel) -> None:
@@ -99,21 +105,6 @@ def test_variance_mode_below_linear_mode():
     assert (b_var < b_lin - 1e-6).any()
 
 
-def test_uncertainty_nll_matches_hand_computation():
-    rgb = torch.tensor([[0.2, 0.4, 0.6], [1.0, 1.0, 1.0]])
-    target = torch.tensor([[0.3, 0.4, 0.2], [0.5, 1.0, 1.0]])
-    beta2 = torch.tensor([0.04, 0.5])
-    sigma_mean = torch.tensor([2.0, 0.0])
-    w = 0.01
-    r0 = (0.01 + 0.0 + 0.16) / (2 * 0.04) + np.log(0.04) / 2 + w * 2.0
-    r1 = 0.25 / (2 * 0.5) + np.log(0.5) / 2 + 0.0
-    got = uncertainty_nll(rgb, target, beta2, sigma_mean, w)
-    assert got.item() == pytest.approx((r0 + r1) / 2, rel=1e-6)
-    assert photometric_mse(rgb, target).item() == pytest.approx((0.01 + 0.16 + 0.25) / 6, rel=1e-6)
-    with pytest.raises(ValueError):
-        uncertainty_nll(rgb, target, beta2[:1], sigma_mean, w)
-
-
 def test_rendering_matches_quadrature_for_a_constant_density_slab():
     """A ray through a box of constant density s: opacity = 1 - exp(-s * length) (Eqn. 1)."""
     m = make("grid", with_beta=False, n_samples=64, grid_res=(16,), upsample_at=())
@@ -133,29 +124,40 @@ def test_rendering_matches_quadrature_for_a_constant_density_slab():
 
 @pytest.mark.parametrize("kind", ["grid", "nerf"])
 def test_interface_and_gradients(kind):
+    """Every parameter the optimiser holds (grids, colour MLP with its beta head; the whole NeRF)
+    gets a finite, non-zero gradient from the uncertainty objective, and one step changes it."""
     m = make(kind)
-    opt = m.make_optimizer(10)
+    if kind == "grid":
+        bump_density(m)
+    opt = m.make_optimizer()
     assert m.update_schedule(0, 10) is False
     o, d = random_rays(256)
     out = m.render_rays(o, d, training=True)
     assert set(out) == {"rgb", "depth", "opacity", "sigma_mean", "beta2"}
     assert out["rgb"].shape == (256, 3) and out["depth"].shape == (256,)
-    loss = uncertainty_nll(out["rgb"], torch.full((256, 3), 0.5), out["beta2"], out["sigma_mean"], 0.01)
-    loss = loss + m.regulariser()
+    uncertain = torch.ones(256, dtype=torch.bool)
+    loss = Objective(nll_start=0)(out, torch.full((256, 3), 0.5), uncertain, step=0) + m.regulariser()
     opt.zero_grad()
     loss.backward()
-    grads = [p.grad for g in opt.param_groups for p in g["params"]]
-    assert any(g is not None and g.abs().sum() > 0 for g in grads)
+    params = {g["name"]: g["params"] for g in opt.param_groups}
+    assert set(params) == ({"density", "feat", "mlp"} if kind == "grid" else {"mlp"})
+    before = {}
+    for name, ps in params.items():
+        for i, p in enumerate(ps):
+            assert p.grad is not None and torch.isfinite(p.grad).all(), (name, i)
+            assert p.grad.abs().sum() > 0, (name, i, tuple(p.shape))
+            before[(name, i)] = p.detach().clone()
     opt.step()
+    assert all(not torch.equal(p, before[(n, i)]) for n, ps in params.items() for i, p in enumerate(ps))
     m2 = make(kind, with_beta=False)
     assert "beta2" not in m2.render_rays(o, d, training=False)
 
 
 def test_bad_config_raises():
     with pytest.raises(ValueError):
-        RadianceModel(FieldConfig(kind="voxels"), BBOX, 0.5, 6.0, False)  # type: ignore[arg-type]
+        GridConfig(grid_res=(16, 32), upsample_at=())
     with pytest.raises(ValueError):
-        RadianceModel(FieldConfig(), np.array([[1.0, 1, 1], [0, 0, 0]]), 0.5, 6.0, False)
+        RadianceModel(ModelConfig(), np.array([[1.0, 1, 1], [0, 0, 0]]), 0.5, 6.0, False)
     with pytest.raises(ValueError):
         make("grid", beta2_mode="sum").render_rays(*random_rays(4), training=False)
 
@@ -169,21 +171,24 @@ def ring(scene):
 @pytest.mark.parametrize("kind", ["grid", "nerf"])
 def test_fit_reduces_loss_and_checkpoint_round_trip(kind, chair32):
     views = ring(chair32)
-    cfg = dict(grid_res=(24, 40), upsample_at=(0.5,), n_samples=48, occ_start=30, occ_every=10) if kind == "grid" else {k: v for k, v in SMALL_NERF.items() if k != "kind"}
-    m = RadianceModel(FieldConfig(kind=kind, **cfg), chair32.bbox, chair32.near, chair32.far, True)
+    if kind == "grid":
+        cfg = ModelConfig(GridConfig(grid_res=(24, 40), upsample_at=(0.5,), occ_start=30, occ_every=10), n_samples=48)
+    else:
+        cfg = small_config("nerf")
+    m = RadianceModel(cfg, chair32.bbox, chair32.near, chair32.far, True)
     before = image_psnr(m, views[:2])
-    res0 = m.resolution
+    res0 = m.field.resolution if kind == "grid" else None
     fit(m, views, steps=80 if kind == "grid" else 60, batch_rays=1024)
     after = image_psnr(m, views[:2])
     assert after > before + (3.0 if kind == "grid" else 1.0), (before, after)  # the tiny MLP is slower
     if kind == "grid":
-        assert m.resolution != res0  # upsampled
+        assert m.field.resolution != res0  # upsampled
         assert not bool(m.field.occ.all())  # the occupancy mask pruned something
     # state_dict round trip into a fresh model (other grid resolution, all-True mask) is exact
     buf = io.BytesIO()
     torch.save(m.state_dict(), buf)
     buf.seek(0)
-    m2 = RadianceModel(FieldConfig(kind=kind, **cfg), chair32.bbox, chair32.near, chair32.far, True)
+    m2 = RadianceModel(cfg, chair32.bbox, chair32.near, chair32.far, True)
     m2.load_state_dict(torch.load(buf))
     cam = views[3].camera
     a, b = m.render_image(cam), m2.render_image(cam)
@@ -195,23 +200,23 @@ def test_fit_reduces_loss_and_checkpoint_round_trip(kind, chair32):
 def test_pose_gradients_flow_through_grid(chair32):
     """Ray origins/directions from a c2w with requires_grad get gradients (what BA needs)."""
     views = ring(chair32)
-    m = RadianceModel(FieldConfig(grid_res=(24,), upsample_at=(), n_samples=48), chair32.bbox, 2.0, 6.0, False)
+    m = RadianceModel(ModelConfig(GridConfig(grid_res=(24,), upsample_at=()), n_samples=48), chair32.bbox, 2.0, 6.0, False)
     fit(m, views, steps=10, batch_rays=1024)
-    bank = RayBank(views[:1])
-    c2w = bank.c2w[bank.cam].clone().requires_grad_(True)
-    o, d = rays_from_c2w(c2w, bank.dirs)
-    loss = photometric_mse(m.render_rays(o, d, training=False)["rgb"], bank.rgb)
+    bank = RayBank.from_images([views[0].camera], [views[0].rgb])
+    c2w = torch.as_tensor(views[0].camera.c2w, dtype=torch.float32).expand(len(bank), 4, 4).clone().requires_grad_(True)
+    o, d = rays_from_c2w(c2w, bank.dirs_cam)
+    loss = (m.render_rays(o, d, training=False)["rgb"] - bank.rgb).pow(2).mean()
     loss.backward()
     assert c2w.grad is not None and c2w.grad.abs().sum() > 0
 
 
 def test_inference_renders_the_whole_box_from_any_distance():
     """A novel camera far outside [near, far] sees the object: only the box bounds sampling."""
-    model = RadianceModel(FieldConfig(**SMALL_GRID), BBOX, near=2.0, far=4.0, with_beta=True, device="cpu")
+    model = RadianceModel(small_config("grid", n_samples=64), BBOX, near=2.0, far=4.0, with_beta=True, device="cpu")
     o, d = random_rays(256)
     with torch.no_grad():
-        here = model.render_rays(o, d, training=False, n_samples=64)
-        far_away = model.render_rays(o - 20.0 * d, d, training=False, n_samples=64)
+        here = model.render_rays(o, d, training=False)
+        far_away = model.render_rays(o - 20.0 * d, d, training=False)
     assert float(here["opacity"].max()) > 0.05  # the untrained grid has some density
     for k in ("rgb", "opacity", "beta2"):
         assert torch.allclose(here[k], far_away[k], atol=1e-5), k

@@ -10,10 +10,20 @@ from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
 from flipviz.data.cameras import rays_from_c2w
+from flipviz.data.rays import RayBank
 from flipviz.geometry.poses import rotation_angle_deg
-from flipviz.model import FieldConfig, PoseRefiner, RadianceModel
-from flipviz.model.losses import photometric_mse
-from flipviz.model.quickfit import RayBank, fit
+from flipviz.model import GridConfig, ModelConfig, PoseRefiner, RadianceModel
+from flipviz.model.fit import fit
+
+
+def mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return (rgb - target).pow(2).mean()
+
+
+def lr_at(ref: PoseRefiner, step: int) -> float:
+    opt = ref.make_optimizer()
+    ref.adjust_lr(opt, step)
+    return opt.param_groups[0]["lr"]
 
 
 pytestmark = pytest.mark.usefixtures("small_torch")
@@ -63,12 +73,10 @@ def test_refiner_composes_on_the_camera_side():
 
 def test_lr_schedule_is_exponential_from_1e3_to_1e5():
     ref = PoseRefiner(np.eye(4)[None], np.array([True]), total_steps=100)
-    assert ref.lr_at(0) == pytest.approx(1e-3)
-    assert ref.lr_at(50) == pytest.approx(1e-4)
-    assert ref.lr_at(100) == pytest.approx(1e-5)
-    opt = ref.make_optimizer()
-    ref.adjust_lr(opt, 100)
-    assert opt.param_groups[0]["lr"] == pytest.approx(1e-5)
+    assert lr_at(ref, 0) == pytest.approx(1e-3)
+    assert lr_at(ref, 50) == pytest.approx(1e-4)
+    assert lr_at(ref, 100) == pytest.approx(1e-5)
+    assert lr_at(ref, 150) == pytest.approx(1e-5)
 
 
 def test_bad_shapes_raise():
@@ -126,7 +134,7 @@ def chair_views(tmp_path_factory):
 def test_ba_recovers_a_perturbed_camera(chair_views):
     """Fit the grid on the true views, perturb one pose by 5 deg / 0.1, refine that pose only."""
     bbox, views = chair_views
-    cfg = FieldConfig(grid_res=(24, 40), upsample_at=(0.4,), n_samples=48, occ_start=40, occ_every=10)
+    cfg = ModelConfig(GridConfig(grid_res=(24, 40), upsample_at=(0.4,), occ_start=40, occ_every=10), n_samples=48)
     model = RadianceModel(cfg, bbox, 1.0, 5.0, False)
     held = views[3]
     fit(model, views, steps=150, batch_rays=1024)
@@ -140,12 +148,12 @@ def test_ba_recovers_a_perturbed_camera(chair_views):
     steps = 80
     ref = PoseRefiner(np.stack([views[0].camera.c2w, start]), np.array([False, True]), steps, lr=1e-2, lr_end=1e-3)
     opt = ref.make_optimizer()
-    bank = RayBank([held])
+    bank = RayBank.from_images([held.camera], [held.rgb])
     for step in range(steps):
         ref.adjust_lr(opt, step)
-        c2w = ref()[1].expand(bank.dirs.shape[0], 4, 4)
-        o, d = rays_from_c2w(c2w, bank.dirs)
-        loss = photometric_mse(model.render_rays(o, d, training=True)["rgb"], bank.rgb)
+        c2w = ref()[1].expand(len(bank), 4, 4)
+        o, d = rays_from_c2w(c2w, bank.dirs_cam)
+        loss = mse(model.render_rays(o, d, training=True)["rgb"], bank.rgb)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -160,16 +168,17 @@ def test_ba_recovers_a_perturbed_camera(chair_views):
 
 def test_unrefined_poses_do_not_move_under_joint_optimisation(chair_views):
     bbox, views = chair_views
-    model = RadianceModel(FieldConfig(grid_res=(16,), upsample_at=(), n_samples=32), bbox, 1.0, 5.0, False)
+    model = RadianceModel(ModelConfig(GridConfig(grid_res=(16,), upsample_at=()), n_samples=32), bbox, 1.0, 5.0, False)
     cams = views[:3]
     init = np.stack([v.camera.c2w for v in cams])
     ref = PoseRefiner(init, np.array([False, True, False]), 10)
-    opt, popt = model.make_optimizer(10), ref.make_optimizer()
-    bank = RayBank(cams)
+    opt, popt = model.make_optimizer(), ref.make_optimizer()
+    bank = RayBank.from_images([v.camera for v in cams], [v.rgb for v in cams])
+    gen = torch.Generator().manual_seed(0)
     for _ in range(5):
-        cam, dirs, target = bank.batch(512)
-        o, d = rays_from_c2w(ref()[cam], dirs)
-        loss = photometric_mse(model.render_rays(o, d, training=True)["rgb"], target)
+        idx = bank.sample(512, gen)
+        o, d = rays_from_c2w(ref()[bank.view[idx]], bank.dirs_cam[idx])
+        loss = mse(model.render_rays(o, d, training=True)["rgb"], bank.rgb[idx])
         opt.zero_grad(), popt.zero_grad()
         loss.backward()
         opt.step(), popt.step()

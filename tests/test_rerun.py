@@ -93,7 +93,7 @@ def run(tmp_path_factory):
 def _check_served(obs) -> dict:
     """While the viewer runs: its URL, what the page returns, which addresses its server listens on."""
     html = urllib.request.urlopen(obs.viewer_url, timeout=10).read()
-    listen = {c.laddr.ip for c in psutil.Process(obs._server.pid).net_connections("tcp") if c.status == "LISTEN"}
+    listen = {c.laddr.ip for c in psutil.Process(obs.viewer.process.pid).net_connections("tcp") if c.status == "LISTEN"}
     return {"url": obs.viewer_url, "html": html, "listen": listen}
 
 

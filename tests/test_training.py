@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -170,29 +169,41 @@ def test_ctrl_c_in_the_loop_and_in_the_final_evaluation(chair, tmp_path):
     assert load_checkpoint(tmp_path / "run")["step"] == tr.step == 15
 
 
+class PauseAt(Observer):
+    """Pauses the trainer from its own thread right after step `at`; every StepEvent sets `stepped`."""
+
+    def __init__(self, trainer, at: int):
+        self.trainer, self.at, self.last = trainer, at, 0
+        self.stepped, self.paused_at = threading.Event(), threading.Event()
+
+    def on_step(self, e):
+        self.last = e.step
+        self.stepped.set()
+        if e.step == self.at:
+            self.trainer.pause()
+            self.paused_at.set()
+
+
 def test_pause_resume_stop(chair, tmp_path):
-    cfg = TrainConfig(method="bl", steps=100000, images_every=0, out=tmp_path / "run", eval_on_stop=False, **TINY)
+    cfg = TrainConfig(
+        method="bl", steps=100000, images_every=0, log_every=1, out=tmp_path / "run", eval_on_stop=False, **TINY
+    )  # fmt: skip
     tr = Trainer(cfg, scene=chair)
-    rec = Recorder()
+    rec, pauser = Recorder(), PauseAt(tr, at=3)
+    tr.add_observer(pauser)
     tr.add_observer(rec)
     th = threading.Thread(target=tr.run)
     th.start()
     try:
-        while tr.step < 3:
-            time.sleep(0.05)
-        tr.pause()
-        s = -1
-        while tr.step != s:  # let the step in flight finish
-            s = tr.step
-            time.sleep(0.5)
+        assert pauser.paused_at.wait(60)
         assert tr.paused
-        time.sleep(1.0)
-        assert tr.step == s  # no steps while paused
+        pauser.stepped.clear()
+        assert not pauser.stepped.wait(1.0)  # no step in a second of pause
+        assert tr.step == 3 and pauser.last == 3
         out = tr.render(tr.split.tests[0].camera, outputs=("rgb",))  # render works while paused
         assert set(out) == {"rgb"} and out["rgb"].shape == (RES, RES, 3)
         tr.resume()
-        while tr.step <= s:
-            time.sleep(0.05)
+        assert pauser.stepped.wait(60) and pauser.last == 4
     finally:
         tr.stop()
         th.join(timeout=60)

@@ -2,15 +2,7 @@
 
 import sys
 
-import tyro
-
-from flipviz.bench import BenchConfig, run_bench
-from flipviz.data.dataset import DatasetError
+from flipviz.cli import main
 
 if __name__ == "__main__":
-    cfg = tyro.cli(BenchConfig)
-    try:
-        print(f"results: {run_bench(cfg)}")
-    except (DatasetError, ValueError) as e:
-        print(f"flipviz: error: {e}".splitlines()[0], file=sys.stderr)
-        sys.exit(2)
+    sys.exit(main(["bench", *sys.argv[1:]]))

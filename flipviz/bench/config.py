@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from flipviz.errors import UserError
 from flipviz.training.config import METHODS, TrainConfig
 
 
@@ -21,17 +22,17 @@ class BenchConfig:
     """Comma-separated methods (bl, bl+u, flip, flip+u, upper) or 'all'."""
     configs: str = "1-8"
     """Protocol configurations: '1-8', '1,3,5' or '2'."""
-    res: int = 100
+    res: int = TrainConfig.res
     """Image width in pixels."""
     steps: int = TrainConfig.steps
     """Optimisation steps per run."""
     batch_rays: int = TrainConfig.batch_rays
     """Rays per optimisation step."""
-    field: Literal["grid", "nerf"] = "grid"
+    field: Literal["grid", "nerf"] = TrainConfig.field
     """Radiance field of every run (grid: fast dense voxel grid; nerf: the paper's MLP)."""
-    n_samples: int | None = None
-    """Samples per ray (None: the field's default)."""
-    grid_res: tuple[int, ...] | None = None
+    n_samples: int = TrainConfig.n_samples
+    """Samples per ray, in training and rendering."""
+    grid_res: tuple[int, ...] | None = TrainConfig.grid_res
     """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
     out: Path = Path("bench")
     """Output folder: results.csv/json, table.md, figures, runs/<key>/ (one folder per run)."""
@@ -45,9 +46,9 @@ class BenchConfig:
     """Threads (and Ray CPUs) per run; 0: cores // workers (local) or 1 (ray)."""
     ablation: bool = False
     """Also run Table II: Flip+U with bundle adjustment and uncertainty each on/off."""
-    seed: int = 0
+    seed: int = TrainConfig.seed
     """Seed of every run (each run is independent and seeded)."""
-    device: str = "cpu"
+    device: str = TrainConfig.device
     """Device of every run: cpu | cuda | cuda:N."""
     retry_failed: bool = True
     """On restart, run failed runs again (finished runs are always skipped)."""
@@ -71,7 +72,7 @@ def parse_methods(text: str) -> list[str]:
         return list(METHODS)
     bad = [m for m in names if m not in METHODS]
     if bad or not names:
-        raise ValueError(f"unknown method(s) {bad or text!r}: choose from {', '.join(METHODS)} or 'all'")
+        raise UserError(f"unknown method(s) {bad or text!r}: choose from {', '.join(METHODS)} or 'all'")
     return list(dict.fromkeys(names))
 
 
@@ -83,7 +84,7 @@ def parse_configs(text: str) -> list[int]:
             lo, _, hi = part.partition("-")
             out += list(range(int(lo), int(hi) + 1)) if hi else [int(lo)]
     except ValueError:
-        raise ValueError(f"--configs must look like '1-8' or '1,3,5', got {text!r}") from None
+        raise UserError(f"--configs must look like '1-8' or '1,3,5', got {text!r}") from None
     if not out or any(n < 1 or n > 8 for n in out):
-        raise ValueError(f"--configs must be protocol configurations in 1..8, got {text!r}")
+        raise UserError(f"--configs must be protocol configurations in 1..8, got {text!r}")
     return list(dict.fromkeys(out))

@@ -8,7 +8,7 @@ import numpy as np
 
 from flipviz.bench.config import BenchConfig, parse_methods
 from flipviz.bench.paper_numbers import METHOD_LABELS, METHOD_ORDER, TABLE3
-from flipviz.bench.tables import _is_nerf_synthetic, _scenes, main_rows
+from flipviz.bench.results import main_rows, paper_scene, scenes
 
 CHART_FILE = "psnr_chart.png"
 RENDERS_DIR = "test_renders"  # the trainer's <run>/test_renders/<view>.png and <view>_gt.png
@@ -27,18 +27,18 @@ def psnr_chart(rows: list[dict], methods: list[str], path: Path) -> Path:
     """Grouped bars: PSNR per scene (and the mean) per method, std over configurations as error
     bars, the paper's value as a black tick where the scene is a NeRF-synthetic one."""
     plt = _plt()
-    scenes = _scenes(rows)
-    groups = scenes + ["Mean"]
+    names = scenes(rows)
+    groups = names + ["Mean"]
     width = 0.8 / max(1, len(methods))
     fig, ax = plt.subplots(figsize=(max(5.0, 1.1 * len(groups) * max(1, len(methods)) * 0.35 + 2), 3.6))
     colors = plt.get_cmap("tab10")
     for j, m in enumerate(methods):
         means, stds, paper = [], [], []
-        for scene in scenes:
+        for scene in names:
             vals = [r["psnr"] for r in main_rows(rows, scene, m) if r.get("psnr") is not None]
             means.append(float(np.mean(vals)) if vals else np.nan)
             stds.append(float(np.std(vals)) if len(vals) > 1 else np.nan)  # nan: no error bar
-            prow = _is_nerf_synthetic(rows, scene)
+            prow = paper_scene(rows, scene)
             paper.append(TABLE3["psnr"][prow][m] if prow else np.nan)
         finite = [v for v in means if np.isfinite(v)]
         means.append(float(np.mean(finite)) if finite else np.nan)
@@ -117,7 +117,7 @@ def write_figures(out: Path, rows: list[dict], cfg: BenchConfig) -> list[Path]:
     """psnr_chart.png and grid_<scene>.png in `out` (matplotlib, Agg backend)."""
     methods = [m for m in METHOD_ORDER if m in parse_methods(cfg.methods)]
     written = [psnr_chart(rows, methods, out / CHART_FILE)]
-    for scene in _scenes(rows):
+    for scene in scenes(rows):
         g = qualitative_grid(out, rows, scene, methods, cfg.grid_views, out / f"grid_{scene}.png")
         if g is not None:
             written.append(g)

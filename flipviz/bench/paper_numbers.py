@@ -1,7 +1,7 @@
 """The paper's numbers (Lee, Kang, Yu, arXiv 2303.06335): Table III and Table II.
 
-Table III PSNR is ../shared/PROTOCOL.md's table; SSIM, LPIPS and Table II come from
-../shared/paper/just_flip.tex. Values are means over the 8 configurations of each scene.
+Table III (PSNR, SSIM, LPIPS) and Table II as printed in the paper. Values are means over the 8
+configurations of each scene.
 """
 
 from __future__ import annotations

@@ -12,19 +12,30 @@ import json
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from flipviz.bench.config import BenchConfig, parse_configs, parse_list, parse_methods
-from flipviz.bench.executors import CHECKPOINT_FILE, RESULT_FILE, RunTask, run_local, run_ray, write_json_atomic
+from flipviz.bench.figures import write_figures
+from flipviz.bench.local import run_local
+from flipviz.bench.ray_cluster import run_ray
+from flipviz.bench.results import ABLATION, RESULT_FILE, read_result
+from flipviz.bench.tables import write_reports
+from flipviz.bench.task import RunTask
+from flipviz.data import load_scene
 from flipviz.data.dataset import DatasetError
+from flipviz.data.scenes import SCENES
+from flipviz.errors import UserError
+from flipviz.files import write_json
+from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
 
 # TrainConfig fields that change where a run writes or what it logs, not what it computes.
+# BenchConfig fields that are TrainConfig settings, passed to every run as they are.
+RUN_SETTINGS = ("res", "steps", "batch_rays", "field", "n_samples", "grid_res", "seed", "device")
 NOT_IN_KEY = (
     "out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop",
 )  # fmt: skip
-ABLATION = ((False, False), (True, False), (False, True), (True, True))  # (BA, U), Table II order
 
 
 @dataclass(frozen=True)
@@ -39,12 +50,13 @@ class RunSpec:
     uncertainty: bool = True
 
     def train_config(self, cfg: BenchConfig, out: Path | None = None) -> TrainConfig:
-        return TrainConfig(
-            scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
-            config=self.config, res=cfg.res, steps=cfg.steps, batch_rays=cfg.batch_rays, field=cfg.field,
-            n_samples=cfg.n_samples, grid_res=cfg.grid_res, ba=self.ba,
-            uncertainty=self.uncertainty, seed=cfg.seed, device=cfg.device, out=out, no_rrd=True,
+        """`flipviz train`'s defaults, with this run's scene, method, configuration and flags, and
+        the bench's run settings (BenchConfig's fields named as TrainConfig's)."""
+        return replace(
+            TrainConfig(), scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
+            config=self.config, ba=self.ba, uncertainty=self.uncertainty, out=out, no_rrd=True,
             images_every=0,  # nobody watches: skip the periodic test renders
+            **{k: getattr(cfg, k) for k in RUN_SETTINGS},
         )  # fmt: skip
 
     def key(self, cfg: BenchConfig) -> str:
@@ -63,29 +75,15 @@ class RunSpec:
         }  # fmt: skip
 
 
-def builtin_scene_names() -> list[str]:
-    try:
-        from flipviz.data import builtin
-
-        names = getattr(builtin, "SCENE_NAMES", None) or getattr(builtin, "BUILTIN_SCENES", None)
-        if names:
-            return list(names)
-    except ImportError:
-        pass
-    from flipviz.data.scenes import SCENES
-
-    return list(SCENES)
-
-
 def resolve_scene(name: str, data_root: Path | None) -> tuple[str, str | None]:
     """(table name, folder or None). Built-in names win; a path, or <data-root>/<name>, is a folder."""
-    if name in builtin_scene_names():
+    if name in list(SCENES):
         return name, None
     p = Path(name).expanduser()
     if not (os.sep in name or p.is_dir()):
         if data_root is None:
             raise DatasetError(
-                f"scene {name!r} is not built-in ({', '.join(builtin_scene_names())}); pass --data-root DIR holding {name}/"
+                f"scene {name!r} is not built-in ({', '.join(list(SCENES))}); pass --data-root DIR holding {name}/"
             )
         p = Path(data_root).expanduser() / name
     if not (p / "transforms_test.json").is_file():
@@ -96,11 +94,11 @@ def resolve_scene(name: str, data_root: Path | None) -> tuple[str, str | None]:
 def plan(cfg: BenchConfig) -> list[RunSpec]:
     """Every run of the bench, each once, in order scene -> configuration -> method."""
     if cfg.res < 8 or cfg.steps < 1 or cfg.workers < 1:
-        raise ValueError("--res must be >= 8, --steps >= 1 and --workers >= 1")
+        raise UserError("--res must be >= 8, --steps >= 1 and --workers >= 1")
     methods, configs = parse_methods(cfg.methods), parse_configs(cfg.configs)
     scenes = [resolve_scene(s, cfg.data_root) for s in parse_list(cfg.scenes)]
     if not scenes:
-        raise ValueError("--scenes is empty")
+        raise UserError("--scenes is empty")
     specs: dict[str, RunSpec] = {}
     for scene, data in scenes:
         for n in configs:
@@ -114,22 +112,11 @@ def plan(cfg: BenchConfig) -> list[RunSpec]:
     return list(specs.values())
 
 
-def read_result(run_dir: Path) -> dict | None:
-    try:
-        return json.loads((run_dir / RESULT_FILE).read_text())
-    except (OSError, ValueError):
-        return None
-
-
 def _prewarm(specs: list[RunSpec], res: int) -> None:
     """Render each built-in scene once here, so parallel runs share the render cache, not race."""
-    try:
-        from flipviz.data import load_scene
-    except ImportError:
-        return
-    for scene, data in dict.fromkeys((s.scene, s.data) for s in specs if s.data is None):
+    for scene in dict.fromkeys(s.scene for s in specs if s.data is None):
         try:
-            load_scene(scene, Path(data) if data else None, res)
+            load_scene(scene, None, res)
         except Exception as e:  # its runs will fail and be recorded; the other scenes go on
             log(f"scene {scene} does not load ({type(e).__name__}: {e}); its runs will fail".splitlines()[0])
 
@@ -147,14 +134,11 @@ def run_bench(cfg: BenchConfig) -> Path:
     """Run (or resume) the bench and write results.csv/json, table.md and the figures in cfg.out."""
     from tqdm import tqdm
 
-    from flipviz.bench.figures import write_figures
-    from flipviz.bench.tables import write_reports
-
     out = Path(cfg.out).expanduser().resolve()
     if cfg.report_only:
         rows = [r for p in sorted((out / "runs").glob("*/" + RESULT_FILE)) if (r := read_result(p.parent))]
         if not rows:
-            raise ValueError(f"--report-only: no results in {out / 'runs'}")
+            raise UserError(f"--report-only: no results in {out / 'runs'}")
         write_reports(out, rows, cfg)
         write_figures(out, rows, cfg)
         log(f"reports of {len(rows)} runs rebuilt in {out}")
@@ -162,7 +146,7 @@ def run_bench(cfg: BenchConfig) -> Path:
     specs = plan(cfg)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     logfile = out / "bench.log"
-    write_json_atomic(out / "bench.json", {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()})
+    write_json(out / "bench.json", asdict(cfg))
 
     keys = [s.key(cfg) for s in specs]
     results: dict[str, dict] = {}
@@ -174,7 +158,7 @@ def run_bench(cfg: BenchConfig) -> Path:
             log(f"skipped {key}: already {r.get('status')} (run {r.get('run_id', '?')[:8]})", logfile)
         else:
             if r is not None:  # a failed run is retried from scratch, not from its last checkpoint
-                (out / "runs" / key / CHECKPOINT_FILE).unlink(missing_ok=True)
+                (out / "runs" / key / CHECKPOINT_NAME).unlink(missing_ok=True)
             todo.append((key, spec))
     log(f"{len(specs)} runs planned: {len(results)} skipped (already done), {len(todo)} to run", logfile)
 
@@ -196,7 +180,7 @@ def run_bench(cfg: BenchConfig) -> Path:
                 log(f"interrupted {key}", logfile)
                 return
             if (read_result(out / "runs" / key) or {}).get("run_id") != res.get("run_id"):
-                write_json_atomic(out / "runs" / key / RESULT_FILE, res)  # e.g. a run on another machine
+                write_json(out / "runs" / key / RESULT_FILE, res)  # e.g. a run on another machine
             results[key] = res
             bar.update(1)
             if res.get("status") == "ok":

@@ -8,9 +8,10 @@ import math
 from dataclasses import asdict
 from pathlib import Path
 
-from flipviz.bench.config import BenchConfig
-from flipviz.bench.executors import write_json_atomic
-from flipviz.bench.paper_numbers import METHOD_LABELS, METHOD_ORDER, TABLE2, TABLE3, paper_row
+from flipviz.bench.config import BenchConfig, parse_configs, parse_methods
+from flipviz.bench.paper_numbers import METHOD_LABELS, METHOD_ORDER, TABLE2, TABLE3
+from flipviz.bench.results import ABLATION, ablation_rows, main_rows, ok_rows, paper_scene, scenes
+from flipviz.files import write_json, write_text
 
 CSV_FIELDS = (
     "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "train_seconds",
@@ -49,41 +50,15 @@ def _fmt(x, metric: str) -> str:
     return "nan" if math.isnan(x) else f"{x:.{DIGITS[metric]}f}"
 
 
-def _ok(rows: list[dict]) -> list[dict]:
-    return [r for r in rows if r.get("status") == "ok"]
-
-
-def main_rows(rows: list[dict], scene: str, method: str) -> list[dict]:
-    """Table III runs: the method with its default flags (BA and U on where it has them)."""
-    return [r for r in _ok(rows) if r["scene"] == scene and r["method"] == method and r.get("default_flags", True)]
-
-
-def ablation_rows(rows: list[dict], scene: str, ba: bool, u: bool) -> list[dict]:
-    return [
-        r for r in _ok(rows)
-        if r["scene"] == scene and r["method"] in ("flip", "flip+u") and r["ba"] == ba and r["uncertainty"] == u
-    ]  # fmt: skip
-
-
-def _scenes(rows: list[dict]) -> list[str]:
-    return list(dict.fromkeys(r["scene"] for r in rows))
-
-
-def _is_nerf_synthetic(rows: list[dict], scene: str) -> str | None:
-    """The paper's row name if `scene` was read from a folder with a NeRF-synthetic name."""
-    folder = next((r.get("data") for r in rows if r["scene"] == scene), "")
-    return paper_row(scene) if folder else None
-
-
 def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
     """Markdown like the paper's Table III: per scene and method, mean over configurations."""
-    scenes = _scenes(rows)
+    names = scenes(rows)
     head = ["Scene"] + [f"{m.upper()} {METHOD_LABELS[x]}" for m in METRICS for x in methods]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     ours: dict[tuple, list] = {}
     papers: dict[tuple, list] = {}
-    for scene in scenes:
-        prow = _is_nerf_synthetic(rows, scene)
+    for scene in names:
+        prow = paper_scene(rows, scene)
         cells = [scene + (f" ({prow})" if prow and prow.lower() != scene.lower() else "")]
         for metric in METRICS:
             for m in methods:
@@ -100,7 +75,7 @@ def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
                     cell += f" ({p:.{DIGITS[metric]}f})"
                 cells.append(cell)
         lines.append("| " + " | ".join(cells) + " |")
-    all_paper = all(_is_nerf_synthetic(rows, s) for s in scenes)
+    all_paper = all(paper_scene(rows, s) for s in names)
     cells = ["**Mean**"]
     for metric in METRICS:
         for m in methods:
@@ -119,9 +94,6 @@ def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
 
 def table2(rows: list[dict]) -> str:
     """Markdown like the paper's Table II: Flip+U with bundle adjustment / uncertainty on and off."""
-    from flipviz.bench.runner import ABLATION
-
-    scenes = _scenes(rows)
     lines = [
         "| bundle adjustment | uncertainty | PSNR | SSIM | LPIPS | runs | paper PSNR | paper SSIM | paper LPIPS |",
         "|---|---|---|---|---|---|---|---|---|",
@@ -129,7 +101,7 @@ def table2(rows: list[dict]) -> str:
     for ba, u in ABLATION:
         per_scene = {m: [] for m in METRICS}
         n = 0
-        for scene in scenes:
+        for scene in scenes(rows):
             rs = ablation_rows(rows, scene, ba, u)
             n += len(rs)
             for m in METRICS:
@@ -147,7 +119,7 @@ def table2(rows: list[dict]) -> str:
 def per_config_table(rows: list[dict], methods: list[str]) -> str:
     head = ["Scene", "Config"] + [METHOD_LABELS[m] for m in methods]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for scene in _scenes(rows):
+    for scene in scenes(rows):
         for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
             cells = [scene, str(n)]
             for m in methods:
@@ -160,7 +132,7 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
 def time_table(rows: list[dict], methods: list[str]) -> str:
     head = ["Scene"] + [METHOD_LABELS[m] for m in methods]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for scene in _scenes(rows):
+    for scene in scenes(rows):
         cells = [scene]
         for m in methods:
             ts = [r["train_seconds"] for r in main_rows(rows, scene, m) if r.get("train_seconds") is not None]
@@ -170,19 +142,17 @@ def time_table(rows: list[dict], methods: list[str]) -> str:
 
 
 def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
-    from flipviz.bench.config import parse_configs, parse_methods
-
     methods = [m for m in METHOD_ORDER if m in parse_methods(cfg.methods)]
     configs = parse_configs(cfg.configs)
-    n_ok = len(_ok(rows))
+    n_ok = len(ok_rows(rows))
     failed = [r for r in rows if r.get("status") != "ok"]
-    lpips_na = any(r.get("lpips") in (None, "unavailable") for r in _ok(rows))
-    versions = next((r.get("versions") for r in _ok(rows) if r.get("versions")), {})
+    lpips_na = any(r.get("lpips") in (None, "unavailable") for r in ok_rows(rows))
+    versions = next((r.get("versions") for r in ok_rows(rows) if r.get("versions")), {})
     parts = [
         "# flipviz bench: Just Flip, paper Table III" + (" and Table II" if cfg.ablation else ""),
         "",
         f"Settings: field `{cfg.field}`"
-        + (f" (grid {cfg.grid_res})" if cfg.grid_res else "") + (f", {cfg.n_samples} samples/ray" if cfg.n_samples else "")
+        + (f" (grid {cfg.grid_res})" if cfg.grid_res else "") + f", {cfg.n_samples} samples/ray"
         + f", {cfg.res} px, {cfg.steps} steps of {cfg.batch_rays} rays, "
         f"seed {cfg.seed}, device `{cfg.device}`, "
         f"configurations {', '.join(map(str, configs))}. {n_ok}/{len(rows)} runs ok. "
@@ -216,13 +186,6 @@ def write_reports(out: Path, rows: list[dict], cfg: BenchConfig) -> None:
     w = csv.DictWriter(buf, fieldnames=CSV_FIELDS)
     w.writeheader()
     w.writerows(flat)
-    _write_text(out / "results.csv", buf.getvalue())
-    bench = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()}
-    write_json_atomic(out / "results.json", {"bench": bench, "runs": rows})
-    _write_text(out / "table.md", render_markdown(rows, cfg))
-
-
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    write_text(out / "results.csv", buf.getvalue())
+    write_json(out / "results.json", {"bench": asdict(cfg), "runs": rows})
+    write_text(out / "table.md", render_markdown(rows, cfg))

@@ -19,6 +19,7 @@ import numpy as np
 
 from flipviz.data.cameras import Camera, View
 from flipviz.data.dataset import DatasetError, SceneData
+from flipviz.files import atomic_path, write_json
 
 NEAR, FAR = 2.0, 6.0
 BBOX = np.array([[-1.5, -1.5, -1.5], [1.5, 1.5, 1.5]])
@@ -152,17 +153,16 @@ def write_blender(scene: SceneData, out_dir: str | os.PathLike, split: str = "te
         rgba = np.concatenate([np.clip(c, 0, 1), a[..., None]], axis=-1)
         png = np.round(rgba * 255.0).astype(np.uint8)
         name = f"r_{i}"
-        if not cv2.imwrite(str(out / split / f"{name}.png"), cv2.cvtColor(png, cv2.COLOR_RGBA2BGRA)):
-            raise DatasetError(f"cannot write {out / split / name}.png")
+        with atomic_path(out / split / f"{name}.png") as tmp:
+            if not cv2.imwrite(str(tmp), cv2.cvtColor(png, cv2.COLOR_RGBA2BGRA)):
+                raise DatasetError(f"cannot write {out / split / name}.png")
         frame = {"file_path": f"./{split}/{name}", "transform_matrix": v.camera.c2w.tolist()}
         if not contiguous:
             frame["orbit_index"] = i
         frames.append(frame)
     first = scene.views[idx[0]].camera
     doc = {"camera_angle_x": first.fov_x, "frames": frames}
-    tmp = out / f".transforms_{split}.json.tmp"
-    tmp.write_text(json.dumps(doc, indent=2))
-    os.replace(tmp, out / f"transforms_{split}.json")
+    write_json(out / f"transforms_{split}.json", doc)
     return out
 
 

@@ -1,6 +1,6 @@
 """Built-in scenes as `SceneData` on the protocol's orbit, with an on-disk render cache.
 
-Orbit (../shared/PROTOCOL.md, built-in scenes): index i sits at azimuth i * 3.6 degrees, counted
+Orbit (the protocol's built-in scenes): index i sits at azimuth i * 3.6 degrees, counted
 counter-clockwise (seen from +z) from the +y axis as on the NeRF-synthetic test orbit (whose index
 0 looks from +y), at a fixed elevation of 30 degrees and radius 4, looking at the origin with up
 +z. Focal length from lego's camera_angle_x. Only the views the protocol needs are rendered by
@@ -10,7 +10,6 @@ default: the 16 ring views and the 16 Upper views (ring index + 1).
 from __future__ import annotations
 
 import os
-import tempfile
 import threading
 from pathlib import Path
 from typing import Iterable
@@ -21,7 +20,8 @@ from flipviz.data.cameras import Camera, View, look_at
 from flipviz.data.dataset import DatasetError, SceneData
 from flipviz.data.protocol import protocol_indices
 from flipviz.data.raycast import render_mesh
-from flipviz.data.scenes import _cached_mesh, symmetry_plane
+from flipviz.data.scenes import cached_mesh, symmetry_plane
+from flipviz.files import atomic_path
 
 RENDERER_VERSION = 1  # bump whenever geometry, colours, shading or the orbit change
 CAMERA_ANGLE_X = 0.6911112070083618  # NeRF-synthetic lego
@@ -47,7 +47,7 @@ _warm: set[str] = set()
 def _scene_mesh(name: str):
     """The cached mesh with its lazily built caches (BVH, normals, colours) built once, under a lock,
     so that concurrent renders (trainer thread, app thread) are safe."""
-    mesh = _cached_mesh(name)
+    mesh = cached_mesh(name)
     if name not in _warm:
         with _warm_lock:
             if name not in _warm:
@@ -86,22 +86,14 @@ def _read_cache(path: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 
 
 def _write_cache(path: Path, renders: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
-    """Atomic write: a temporary file in the same folder, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
     idx = sorted(renders)
-    fd, tmp = tempfile.mkstemp(prefix=path.stem, suffix=".tmp.npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(
-                f,
-                indices=np.array(idx, dtype=np.int64),
-                rgb=np.stack([renders[i][0] for i in idx]),
-                alpha=np.stack([renders[i][1] for i in idx]),
-            )
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(
+            tmp,
+            indices=np.array(idx, dtype=np.int64),
+            rgb=np.stack([renders[i][0] for i in idx]),
+            alpha=np.stack([renders[i][1] for i in idx]),
+        )
 
 
 def load_builtin(name: str, res: int = 100, cache: bool = True, indices: Iterable[int] | None = None) -> SceneData:
@@ -120,7 +112,7 @@ def load_builtin(name: str, res: int = 100, cache: bool = True, indices: Iterabl
         _write_cache(path, renders)
 
     views = {i: View(orbit_camera(i, res), renders[i][0], renders[i][1], index=i) for i in wanted}
-    bounds = np.asarray(_cached_mesh(name).bounds, dtype=np.float64)
+    bounds = np.asarray(cached_mesh(name).bounds, dtype=np.float64)
     pad = 0.05 * (bounds[1] - bounds[0]).max()
     return SceneData(
         name=name,

@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flipviz.data.cameras import View
+from flipviz.errors import UserError
 
 
-class DatasetError(ValueError):
+class DatasetError(UserError):
     """Bad input data. Its message is one line, meant to be shown to the user as is."""
 
 
@@ -30,6 +31,19 @@ class Plane:
 
     def to_dict(self) -> dict:
         return {"point": self.point.tolist(), "normal": self.normal.tolist()}
+
+    def basis(self) -> np.ndarray:
+        """Rotation (3, 3) whose columns u, v, n span the plane (u, v) and give its normal (n)."""
+        n = self.normal
+        helper = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        u = np.cross(helper, n)
+        u /= np.linalg.norm(u)
+        return np.stack([u, np.cross(n, u), n], axis=1)
+
+    def square(self, half: float) -> np.ndarray:
+        """The 4 corners (4, 3) of a square of half-size `half` in the plane, centred on its point."""
+        u, v = self.basis()[:, 0], self.basis()[:, 1]
+        return np.stack([self.point + half * (a * u + b * v) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
 
     @classmethod
     def from_dict(cls, d: dict) -> "Plane":

@@ -1,4 +1,4 @@
-"""The evaluation protocol of ../shared/PROTOCOL.md (paper Sec. IV-A), made exact.
+"""The paper's evaluation protocol (Sec. IV-A), as the project fixed it, made exact.
 
 Ring: the first turn of the source orbit, indices 0..99. The 16 ring views are
 round(k * 100 / 16), k = 0..15, 22.5 degrees apart. Configuration n = 1..8 observes the ring
@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 from flipviz.data.cameras import View
 from flipviz.data.dataset import DatasetError, SceneData
+from flipviz.errors import UserError
 
 N_RING = 16  # ring views
 N_OBSERVED = 8  # input views per configuration
@@ -26,7 +27,7 @@ assert RING_INDICES == (0, 6, 12, 19, 25, 31, 38, 44, 50, 56, 62, 69, 75, 81, 88
 
 def _check_config(config: int) -> int:
     if isinstance(config, bool) or not isinstance(config, int) or config not in CONFIGS:
-        raise ValueError(f"protocol configuration must be an integer in 1..8, got {config!r}")
+        raise UserError(f"protocol configuration must be an integer in 1..8, got {config!r}")
     return config
 
 

@@ -232,13 +232,13 @@ def _spec(name: str) -> SceneSpec:
 
 
 @lru_cache(maxsize=None)
-def _cached_mesh(name: str) -> trimesh.Trimesh:
+def cached_mesh(name: str) -> trimesh.Trimesh:
     return _spec(name).builder()
 
 
 def build_mesh(name: str) -> trimesh.Trimesh:
     """The coloured mesh of built-in scene `name` (a fresh copy; face_colors set)."""
-    return _cached_mesh(name).copy()
+    return cached_mesh(name).copy()
 
 
 def symmetry_plane(name: str) -> Plane | None:

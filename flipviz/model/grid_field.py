@@ -11,7 +11,7 @@ Vanilla NeRF represents F with a large MLP (nerf_field.py); here F is mostly a l
 `shift` makes every voxel almost transparent at start (alpha_init); s is the voxel size of the
 first (coarsest) grid, so a raw value means the same opacity per voxel at every resolution.
 
-What makes it fast on a CPU (see ../shared/CPU_PERF_NOTES.md):
+What makes it fast on a CPU (measured on the 2-core development machine):
 - each channel is its own single-channel volume, batched along grid_sample's N dimension;
 - an occupancy mask (refreshed from the density every few steps, dilated, with a threshold
   relative to the current maximum) drops samples in empty space before any lookup;
@@ -26,20 +26,60 @@ What makes it fast on a CPU (see ../shared/CPU_PERF_NOTES.md):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from flipviz.model.encoding import posenc
+from flipviz.model.optim import adam
 
-def posenc(x: Tensor, n_freqs: int) -> Tensor:
-    """NeRF positional encoding [x, sin(2^k x), cos(2^k x)]_{k<n_freqs}, (P,D) -> (P, D(1+2n))."""
-    if n_freqs == 0:
-        return x
-    freqs = 2.0 ** torch.arange(n_freqs, device=x.device, dtype=x.dtype)
-    xb = (x[..., None, :] * freqs[:, None]).flatten(-2)
-    return torch.cat([x, torch.sin(xb), torch.cos(xb)], -1)
+
+@dataclass
+class GridConfig:
+    """The dense voxel grid: its resolution schedule, occupancy mask, colour MLP and optimiser."""
+
+    grid_res: tuple[int, ...] = (64, 128)
+    """Voxels along the longest box side, coarse to fine."""
+    upsample_at: tuple[float, ...] = (0.25,)
+    """Training fractions at which the grid moves to the next resolution (one per step of grid_res)."""
+    feat_dim: int = 6
+    alpha_init: float = 1e-2
+    """Initial opacity of one voxel (density starts very low)."""
+    view_dependent: bool = True
+    view_pe: int = 2
+    mlp_width: int = 64
+    mlp_layers: int = 2
+    lr_density: float = 0.1
+    lr_feat: float = 0.1
+    lr_mlp: float = 1e-3
+    lr_decay: float = 0.1
+    """Learning rates decay exponentially to lr * lr_decay at the end of training."""
+    tv_density: float = 1e-4
+    tv_feat: float = 1e-5
+    tv_samples: int = 8192
+    """Random voxels per step on which the TV regulariser is estimated."""
+    color_thresh: float = 1e-4
+    """Colour is evaluated only where the sample weight exceeds this (from occ_start on; before,
+    while every weight is still tiny, where it exceeds alpha_init / 100)."""
+    occ_start: int = 100
+    """Step from which the occupancy mask is refreshed (all True before)."""
+    occ_every: int = 50
+    occ_thresh: float = 0.02
+    """Voxel alpha (over one sample spacing) below min(occ_thresh, occ_rel * max alpha) is empty.
+    Pruning this low-density haze also removes the white fog few-view training grows."""
+    occ_rel: float = 0.05
+    occ_dilate: int = 1
+
+    def __post_init__(self) -> None:
+        if len(self.upsample_at) != len(self.grid_res) - 1:
+            raise ValueError("GridConfig.upsample_at needs one fraction per grid_res step")
+
+    def build(self, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str) -> "GridField":
+        return GridField(self, bbox, with_beta, beta_init, device)
 
 
 def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
@@ -49,9 +89,9 @@ def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
 
 
 class GridField(nn.Module):
-    two_stage = True
-
-    def __init__(self, cfg, bbox: np.ndarray, with_beta: bool, device: torch.device | str = "cpu"):
+    def __init__(
+        self, cfg: GridConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu"
+    ):
         super().__init__()
         self.cfg = cfg
         self.with_beta = with_beta
@@ -69,6 +109,7 @@ class GridField(nn.Module):
         self.register_buffer("occ", torch.ones(rz, ry, rx, dtype=torch.bool, device=device))
         self._occ_idx: Tensor | None = None  # flat indices of occupied voxels (for the TV)
         self.register_buffer("stage", torch.zeros((), dtype=torch.long, device=device))
+        self.color_thresh = self._early_color_thresh()
         in_dim = cfg.feat_dim + (3 + 6 * cfg.view_pe if cfg.view_dependent else 0)
         out_dim = 4 if with_beta else 3
         layers: list[nn.Module] = []
@@ -79,7 +120,34 @@ class GridField(nn.Module):
         self.rgbnet = nn.Sequential(*layers).to(device)
         if with_beta:  # start with a small per-sample variance: softplus(raw) = beta_init^2
             with torch.no_grad():
-                self.rgbnet[-1].bias[3] = math.log(math.expm1(cfg.beta_init**2))
+                self.rgbnet[-1].bias[3] = math.log(math.expm1(beta_init**2))
+
+    def _early_color_thresh(self) -> float:
+        return min(self.cfg.color_thresh, self.cfg.alpha_init / 100.0)
+
+    # --- what the renderer calls -----------------------------------------------------------
+    def query(self, x: Tensor, d: Tensor) -> tuple[Tensor, Callable[[Tensor], tuple[Tensor, Tensor, Tensor | None]]]:
+        """Densities of samples x (R, N, 3) on rays d (R, 3), and their colouring by weight.
+
+        sigma (R, N) is evaluated only where the occupancy mask is set (0 elsewhere). The returned
+        `colour(w)` takes the sample weights w (R, N) and evaluates colour (and beta) only where
+        w > color_thresh: it returns the flat sample indices (K,), rgb (K, 3) and beta raw (K,).
+        """
+        R, N = x.shape[:2]
+        x_flat = x.reshape(-1, 3)
+        with torch.no_grad():
+            occ = torch.nonzero(self.occupied(x_flat)).squeeze(-1)
+        sigma = torch.zeros(R * N, device=x.device, dtype=x.dtype)
+        if occ.numel() > 0:
+            sigma = sigma.index_put((occ,), self.density(x_flat[occ]))
+
+        def colour(w: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
+            with torch.no_grad():
+                keep = torch.nonzero(w.reshape(-1) > self.color_thresh).squeeze(-1)
+            rgb, raw = self.color(x_flat[keep], d[keep // N])
+            return keep, rgb, raw
+
+        return sigma.view(R, N), colour
 
     # --- lookups -------------------------------------------------------------------------
     def _normalise(self, x: Tensor) -> Tensor:
@@ -105,15 +173,29 @@ class GridField(nn.Module):
     def color(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor | None]:
         h = self._sample(self.feat_grid, x)
         if self.cfg.view_dependent:
-            h = torch.cat([h, posenc(d, self.cfg.view_pe)], -1)
+            h = torch.cat([h, posenc(d, self.cfg.view_pe)], -1)  # unit directions: no pi scale
         out = self.rgbnet(h)
         return torch.sigmoid(out[:, :3]), (out[:, 3] if self.with_beta else None)
 
-    def forward(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
-        rgb, raw = self.color(x, d)
-        return self.density(x), rgb, raw
-
     # --- schedule ------------------------------------------------------------------------
+    def update_schedule(self, step: int, total_steps: int, step_len: float) -> bool:
+        """Coarse-to-fine upsampling, the colour threshold, and the occupancy refresh.
+
+        Returns True when the grids were re-created (upsampled): the optimiser must be rebuilt.
+        """
+        cfg = self.cfg
+        changed = False
+        target = sum(1 for a in cfg.upsample_at if step >= a * total_steps)
+        while int(self.stage) < target:
+            self.stage += 1
+            self.upsample(cfg.grid_res[int(self.stage)])
+            changed = True
+        early = step < cfg.occ_start
+        self.color_thresh = self._early_color_thresh() if early else cfg.color_thresh
+        if not early and (changed or (step - cfg.occ_start) % cfg.occ_every == 0):
+            self.refresh_occupancy(step_len)
+        return changed
+
     @torch.no_grad()
     def refresh_occupancy(self, step_len: float) -> None:
         """occ = dilate(alpha_voxel > min(occ_thresh, occ_rel * max alpha_voxel))."""
@@ -188,10 +270,19 @@ class GridField(nn.Module):
             r = r + c.tv_feat * tv(self.feat_grid)
         return r
 
-    def param_groups(self) -> list[dict]:
+    def make_optimizer(self) -> torch.optim.Optimizer:
+        """Adam over the current grids (rebuild it after an upsampling). eps = 1e-15: the default
+        1e-8 swamps the grids' tiny early gradients. Each group keeps its base lr in "lr0"."""
         c = self.cfg
-        return [
+        groups = [
             {"params": [self.density_grid], "lr": c.lr_density, "name": "density"},
             {"params": [self.feat_grid], "lr": c.lr_feat, "name": "feat"},
             {"params": list(self.rgbnet.parameters()), "lr": c.lr_mlp, "name": "mlp"},
         ]
+        return adam(groups, eps=1e-15, betas=(0.9, 0.99))
+
+    @property
+    def resolution(self) -> tuple[int, int, int]:
+        """Current grid shape (Z, Y, X)."""
+        return tuple(self.density_grid.shape[2:])  # type: ignore[return-value]
+

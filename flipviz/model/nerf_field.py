@@ -2,12 +2,12 @@
 
     F_Theta(x, d) -> (sigma, c, beta raw):  8 x 256 ReLU layers on PE(x) (10 bands, skip at layer
     4), sigma from the trunk, then a 128-wide layer on [trunk feature, PE(d) (4 bands)] -> c (and
-    the variance head of Sec. IV-C). All sizes are configurable (FieldConfig.nerf_*).
+    the variance head of Sec. IV-C). All sizes are configurable (`NerfConfig`).
 
 Differences from the original: one network and `n_samples` stratified samples inside the scene box
 (no hierarchical coarse/fine pair); points are normalised to [-1, 1] by the box.
 
-BARF's coarse-to-fine schedule: with `nerf_barf_c2f = (start, end)` the k-th positional-encoding
+BARF's coarse-to-fine schedule: with `barf_c2f = (start, end)` the k-th positional-encoding
 band of x is weighted by (1 - cos(pi * clamp(a - k, 0, 1))) / 2, a = L (p - start) / (end - start),
 p = training progress in [0, 1], so that pose refinement first sees a smooth field.
 """
@@ -15,29 +15,54 @@ p = training progress in [0, 1], so that pose refinement first sees a smooth fie
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from flipviz.model.encoding import posenc
+from flipviz.model.optim import adam
+
+
+@dataclass
+class NerfConfig:
+    """The vanilla NeRF MLP and its optimiser."""
+
+    depth: int = 8
+    width: int = 256
+    pe: int = 10
+    """Positional-encoding bands of x."""
+    dir_pe: int = 4
+    """Positional-encoding bands of the view direction."""
+    lr: float = 5e-4
+    lr_decay: float = 0.1
+    """The learning rate decays exponentially to lr * lr_decay at the end of training."""
+    barf_c2f: tuple[float, float] | None = None
+    """BARF's positional-encoding annealing window, e.g. (0.1, 0.5); None = off."""
+
+    def build(self, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str) -> "NerfField":
+        return NerfField(self, bbox, with_beta, beta_init, device)
+
 
 class NerfField(nn.Module):
-    two_stage = False
-
-    def __init__(self, cfg, bbox: np.ndarray, with_beta: bool, device: torch.device | str = "cpu"):
+    def __init__(
+        self, cfg: NerfConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu"
+    ):
         super().__init__()
         self.cfg = cfg
         self.with_beta = with_beta
         self.register_buffer("lo", torch.as_tensor(bbox[0], dtype=torch.float32, device=device))
         self.register_buffer("hi", torch.as_tensor(bbox[1], dtype=torch.float32, device=device))
         self.register_buffer("progress", torch.ones((), device=device))  # for BARF's c2f schedule
-        W, L, Ld = cfg.nerf_width, cfg.nerf_pe, cfg.nerf_dir_pe
+        W, L, Ld = cfg.width, cfg.pe, cfg.dir_pe
         in_x, in_d = 3 + 6 * L, 3 + 6 * Ld
-        self.skip = cfg.nerf_depth // 2
+        self.skip = cfg.depth // 2
         self.trunk = nn.ModuleList()
         dim = in_x
-        for i in range(cfg.nerf_depth):
+        for i in range(cfg.depth):
             if i == self.skip and i > 0:
                 dim += in_x
             self.trunk.append(nn.Linear(dim, W))
@@ -46,50 +71,49 @@ class NerfField(nn.Module):
         self.feature = nn.Linear(W, W)
         self.view = nn.Linear(W + in_d, W // 2)
         self.out = nn.Linear(W // 2, 4 if with_beta else 3)
-        if with_beta:
+        if with_beta:  # start with a small per-sample variance: softplus(raw) = beta_init^2
             with torch.no_grad():
-                self.out.bias[3] = math.log(math.expm1(cfg.beta_init**2))
+                self.out.bias[3] = math.log(math.expm1(beta_init**2))
         self.to(device)
 
-    def _pe(self, x: Tensor, n: int, barf: bool) -> Tensor:
-        if n == 0:
-            return x
-        freqs = 2.0 ** torch.arange(n, device=x.device, dtype=x.dtype)
-        xb = x[..., None, :] * (math.pi * freqs[:, None])  # (P, n, 3)
-        enc = torch.cat([torch.sin(xb), torch.cos(xb)], -1)  # (P, n, 6)
-        c2f = self.cfg.nerf_barf_c2f
-        if barf and c2f is not None:
-            a = (float(self.progress) - c2f[0]) / (c2f[1] - c2f[0]) * n
-            k = torch.arange(n, device=x.device, dtype=x.dtype)
-            wk = (1.0 - torch.cos(math.pi * (a - k).clamp(0.0, 1.0))) / 2.0
-            enc = enc * wk[:, None]
-        return torch.cat([x, enc.flatten(-2)], -1)
+    def barf_weights(self) -> Tensor | None:
+        """BARF's weight of each positional-encoding band of x at the current progress (None: off)."""
+        c2f = self.cfg.barf_c2f
+        if c2f is None:
+            return None
+        n = self.cfg.pe
+        a = (float(self.progress) - c2f[0]) / (c2f[1] - c2f[0]) * n
+        k = torch.arange(n, device=self.progress.device, dtype=torch.float32)
+        return (1.0 - torch.cos(math.pi * (a - k).clamp(0.0, 1.0))) / 2.0
 
     def forward(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
+        """x, d (P, 3) -> sigma (P,), rgb (P, 3), beta raw (P,) or None."""
         xn = (x - self.lo) / (self.hi - self.lo) * 2.0 - 1.0
-        px = self._pe(xn, self.cfg.nerf_pe, barf=True)
+        px = posenc(xn, self.cfg.pe, math.pi, self.barf_weights())
         h = px
         for i, layer in enumerate(self.trunk):
             if i == self.skip and i > 0:
                 h = torch.cat([h, px], -1)
             h = F.relu(layer(h))
         sigma = F.softplus(self.sigma_head(h)[:, 0])
-        h = torch.cat([self.feature(h), self._pe(d, self.cfg.nerf_dir_pe, barf=False)], -1)
+        h = torch.cat([self.feature(h), posenc(d, self.cfg.dir_pe, math.pi)], -1)
         out = self.out(F.relu(self.view(h)))
         return sigma, torch.sigmoid(out[:, :3]), (out[:, 3] if self.with_beta else None)
 
-    def occupied(self, x: Tensor) -> Tensor:
-        return torch.ones(x.shape[0], dtype=torch.bool, device=x.device)
+    def query(self, x: Tensor, d: Tensor) -> tuple[Tensor, Callable[[Tensor], tuple[Tensor, Tensor, Tensor | None]]]:
+        """Densities of samples x (R, N, 3) on rays d (R, 3); colour is computed with them, for all samples."""
+        R, N = x.shape[:2]
+        sigma, rgb, raw = self(x.reshape(-1, 3), d[:, None, :].expand(R, N, 3).reshape(-1, 3))
+        every = torch.arange(R * N, device=x.device)
+        return sigma.view(R, N), lambda w: (every, rgb, raw)
 
-    def density(self, x: Tensor) -> Tensor:
-        return self.forward(x, torch.zeros_like(x))[0]
-
-    def color(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor | None]:
-        _, rgb, raw = self.forward(x, d)
-        return rgb, raw
+    def update_schedule(self, step: int, total_steps: int, step_len: float) -> bool:
+        """BARF's progress p = step / total_steps; the parameters never change."""
+        self.progress.fill_(step / max(total_steps, 1))
+        return False
 
     def regulariser(self) -> Tensor:
         return self.sigma_head.weight.new_zeros(())
 
-    def param_groups(self) -> list[dict]:
-        return [{"params": list(self.parameters()), "lr": self.cfg.nerf_lr, "name": "mlp"}]
+    def make_optimizer(self) -> torch.optim.Optimizer:
+        return adam([{"params": list(self.parameters()), "lr": self.cfg.lr, "name": "mlp"}], eps=1e-8, betas=(0.9, 0.999))

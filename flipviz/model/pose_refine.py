@@ -6,8 +6,11 @@ SE(3) element stored as [t, q_xyzw]), initialised at zero, and its pose is
 
     c2w_i = c2w_i^init @ Exp(xi_i)          (the correction acts on the camera side)
 
-so xi_i is a small motion expressed in camera i's own frame (BARF composes its correction with
-the camera pose the same way). Rays are generated from the refined c2w with
+so xi_i is a small motion expressed in camera i's own frame. BARF composes on the world side
+instead (its world-to-camera pose is applied after the correction, i.e. c2w = Exp(xi)^-1 @ c2w_init).
+flipviz uses the camera side because a mirrored camera sits 4 units from the world origin: a
+world-side rotation swings the camera around the origin, coupling rotation and translation, while
+a camera-side one turns it in place, so the 6 components of xi_i are independent. Rays are generated from the refined c2w with
 `flipviz.data.cameras.rays_from_c2w`, so the photometric loss is differentiable in xi_i. Only
 cameras with refine[i] = True move (in the paper: the mirrored cameras); the others keep exactly
 their initial pose.
@@ -26,6 +29,8 @@ import numpy as np
 import pypose as pp
 import torch
 from torch import Tensor, nn
+
+from flipviz.model.optim import decay_lr
 
 
 class PoseRefiner(nn.Module):
@@ -62,14 +67,9 @@ class PoseRefiner(nn.Module):
     def make_optimizer(self) -> torch.optim.Optimizer:
         return torch.optim.Adam([{"params": [self.xi], "lr": self.lr, "lr0": self.lr}])
 
-    def lr_at(self, step: int) -> float:
-        """lr * (lr_end / lr)^(step / total_steps)."""
-        p = min(step, self.total_steps) / max(self.total_steps, 1)
-        return self.lr * (self.lr_end / self.lr) ** p
-
     def adjust_lr(self, optimizer: torch.optim.Optimizer, step: int) -> None:
-        for g in optimizer.param_groups:
-            g["lr"] = self.lr_at(step)
+        """lr * (lr_end / lr)^(step / total_steps)."""
+        decay_lr(optimizer, step, self.total_steps, self.lr_end / self.lr)
 
     @torch.no_grad()
     def c2w_numpy(self) -> np.ndarray:

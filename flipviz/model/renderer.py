@@ -21,15 +21,17 @@ lost sum_j w_j (1 - w_j)), which has variance beta_min^2. Both therefore equal
 beta_min^2 + sum_j w_j^p softplus(raw_j) with p = 1 or 2, so beta_hat^2 >= beta_min^2 on every
 ray, including rays that miss the scene (beta_hat^2 = beta_min^2 exactly).
 
+The official code composites linearly, sum_j w_j beta_bar_j^2; that is flipviz's default.
+
 Samples are placed inside the scene box only (rays that miss the box are never sampled), evenly
-over [max(near, t_in), min(far, t_out)], with stratified jitter while training. A field either
-evaluates everything at once (the NeRF MLP), or in two stages (the grid): density only where its
-occupancy mask is set, then colour only where the weight w_j exceeds `color_thresh`.
+over [max(near, t_in), min(far, t_out)], with stratified jitter while training. The field decides
+where it evaluates (`Field.query`): the grid computes density only inside its occupancy mask and
+colour only where the weight w_j is large enough; the NeRF MLP computes everything everywhere.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Callable, Protocol
 
 import torch
 import torch.nn.functional as F
@@ -37,17 +39,14 @@ from torch import Tensor
 
 
 class Field(Protocol):
-    """What the renderer needs from a radiance field (see grid_field.py and nerf_field.py)."""
+    """What the renderer needs from a radiance field (grid_field.py, nerf_field.py)."""
 
-    two_stage: bool  # True: density() then color() on surviving samples; False: forward()
+    with_beta: bool  # the field has the variance head of Sec. IV-C
 
-    def occupied(self, x: Tensor) -> Tensor: ...  # (P,3) -> bool (P,)
-
-    def density(self, x: Tensor) -> Tensor: ...  # (P,3) -> sigma (P,)
-
-    def color(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor | None]: ...  # rgb (P,3), beta raw (P,)
-
-    def __call__(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor | None]: ...  # sigma, rgb, raw
+    def query(self, x: Tensor, d: Tensor) -> tuple[Tensor, Callable[[Tensor], tuple[Tensor, Tensor, Tensor | None]]]:
+        """Samples x (R, N, 3) on rays with directions d (R, 3) -> sigma (R, N), and colour(w):
+        weights w (R, N) -> flat indices (K,) of the samples it coloured, rgb (K, 3), beta raw (K,)."""
+        ...
 
 
 def ray_box(origins: Tensor, dirs: Tensor, bbox: Tensor) -> tuple[Tensor, Tensor]:
@@ -73,10 +72,8 @@ def render_rays(
     far: float,
     n_samples: int,
     training: bool,
-    with_beta: bool,
     beta_min: float,
     beta2_mode: str = "linear",
-    color_thresh: float = 1e-4,
 ) -> dict[str, Tensor]:
     """Render R rays (origins (R,3), unit dirs (R,3)); see the module docstring for the maths.
 
@@ -84,6 +81,7 @@ def render_rays(
     opacity (R,) = sum_j w_j, sigma_mean (R,) = (1/N_s) sum_j sigma(t_j), and, when with_beta,
     beta2 (R,) = beta_hat^2.
     """
+    with_beta = field.with_beta
     if beta2_mode not in ("linear", "variance"):
         raise ValueError(f"beta2_mode must be 'linear' or 'variance', got {beta2_mode!r}")
     R, N, dev = origins.shape[0], n_samples, origins.device
@@ -125,45 +123,19 @@ def render_rays(
         t = t0[:, None] + span * u  # (Rh, N)
         delta = (span / N).expand(Rh, N)  # segment lengths (equal bins)
     x = o[:, None, :] + t[..., None] * d[:, None, :]  # (Rh, N, 3), differentiable in o, d
-    x_flat = x.reshape(-1, 3)
-    ray_id = torch.arange(Rh, device=dev)[:, None].expand(Rh, N).reshape(-1)
-
-    if field.two_stage:
-        # Stage 1: density where the occupancy mask says occupied (sigma = 0 elsewhere).
-        with torch.no_grad():
-            occ = torch.nonzero(field.occupied(x_flat)).squeeze(-1)
-        sigma = torch.zeros(Rh * N, device=dev, dtype=dtype)
-        if occ.numel() > 0:
-            sigma = sigma.index_put((occ,), field.density(x_flat[occ]))
-        sigma = sigma.view(Rh, N)
-    else:
-        d_flat = d[:, None, :].expand(Rh, N, 3).reshape(-1, 3)
-        sigma_f, rgb_f, raw_f = field(x_flat, d_flat)
-        sigma = sigma_f.view(Rh, N)
+    sigma, colour = field.query(x, d)  # sigma (Rh, N)
 
     # Eqn. 1, discretised: alpha_j, T_j = exp(-sum_{k<j} sigma_k delta_k), w_j = T_j alpha_j.
     tau = sigma * delta
     alpha = 1.0 - torch.exp(-tau)
     T = torch.exp(-torch.cat([torch.zeros_like(tau[:, :1]), torch.cumsum(tau, -1)[:, :-1]], -1))
-    w = (T * alpha).reshape(-1)
+    w = T * alpha  # (Rh, N)
 
-    if field.two_stage:
-        # Stage 2: colour (and beta) only where the sample contributes.
-        with torch.no_grad():
-            keep = torch.nonzero(w > color_thresh).squeeze(-1)
-        rid = ray_id[keep]
-        wk = w[keep]
-        if keep.numel() > 0:
-            c, raw = field.color(x_flat[keep], d[rid])
-        else:
-            c = torch.zeros(0, 3, device=dev, dtype=dtype)
-            raw = torch.zeros(0, device=dev, dtype=dtype) if with_beta else None
-    else:
-        rid, wk, c, raw = ray_id, w, rgb_f, raw_f
-
-    acc = torch.zeros(Rh, device=dev, dtype=dtype).index_add(0, ray_id, w)
-    col = torch.zeros(Rh, 3, device=dev, dtype=dtype).index_add(0, rid, wk[:, None] * c)
-    dep = torch.zeros(Rh, device=dev, dtype=dtype).index_add(0, ray_id, w * t.reshape(-1))
+    keep, c, raw = colour(w)  # the samples the field coloured: flat indices (K,), rgb (K, 3), raw (K,)
+    rid, wk = keep // N, w.reshape(-1)[keep]  # their ray and weight
+    acc = w.sum(-1)  # opacity sum_j w_j
+    col = torch.zeros(Rh, 3, device=dev, dtype=dtype).index_add(0, rid, wk[:, None] * c)  # sum_j w_j c_j
+    dep = (w * t).sum(-1)
     h_rgb = col + (1.0 - acc)[:, None]  # white background
     h_depth = dep + (1.0 - acc) * far
     out["rgb"] = rgb.index_put((hit,), h_rgb)
@@ -171,8 +143,6 @@ def render_rays(
     out["opacity"] = opacity.index_put((hit,), acc)
     out["sigma_mean"] = sigma_mean.index_put((hit,), sigma.mean(-1))  # (1/N_s) sum_j sigma(t_j)
     if with_beta:
-        if raw is None:
-            raise ValueError("with_beta=True but the field has no variance head")
         wp = wk if beta2_mode == "linear" else wk * wk
         # beta_bar^2 = beta_min^2 + softplus(raw) (Sec. IV-C); composited as in the docstring.
         extra = torch.zeros(Rh, device=dev, dtype=dtype).index_add(0, rid, wp * F.softplus(raw))

@@ -1,15 +1,17 @@
 """Checkpoints: field + poses + config + step + optimiser states, written atomically.
 
-A checkpoint is only ever written from a finite training state, and always as tmp + rename, so
-the file on disk is the last good state even if the process dies or the loss turns NaN.
+A checkpoint is only ever written from a finite training state, and always through a temporary
+file renamed over the old one, so the file on disk is the last good state even if the process
+dies or the loss turns NaN.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
+
+from flipviz.files import atomic_path
 
 CHECKPOINT_NAME = "checkpoint.pt"
 
@@ -25,13 +27,10 @@ def checkpoint_path(path: Path | str) -> Path:
 
 
 def save_checkpoint(path: Path, state: dict) -> Path:
-    """Write `state` (plain data + tensors) to `path` via tmp + rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
-    return path
+    """Write `state` (plain data + tensors) to `path`, atomically."""
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+    return Path(path)
 
 
 def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") -> dict:

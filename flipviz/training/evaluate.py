@@ -8,22 +8,22 @@ missing the metric is the string "unavailable" with a one-line reason: never a m
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from flipviz.model.objective import psnr as psnr_from_mse
+
 ALEXNET_FILE = "alexnet-owt-7be5be79.pth"  # torchvision's AlexNet ImageNet weights
 LPIPS_FILE = "alex.pth"  # LPIPS v0.1 linear layers for AlexNet
 UNAVAILABLE = "unavailable"
 
 
-def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
-    """PSNR = -10 log10(MSE), images in [0, 1]."""
-    mse = float(np.mean((np.clip(pred, 0, 1).astype(np.float64) - gt.astype(np.float64)) ** 2))
-    return float(-10.0 * np.log10(max(mse, 1e-12)))
+def image_psnr(pred: np.ndarray, gt: np.ndarray) -> float:
+    """PSNR (dB) of an image against its ground truth, both in [0, 1] (the prediction is clipped)."""
+    return psnr_from_mse(np.mean((np.clip(pred, 0, 1).astype(np.float64) - gt.astype(np.float64)) ** 2))
 
 
 def ssim(pred: np.ndarray, gt: np.ndarray) -> float:
@@ -130,7 +130,7 @@ def score_views(preds: list[np.ndarray], gts: list[np.ndarray], names: list[str]
     net, reason = load_lpips()
     per_view = []
     for name, p, g in zip(names, preds, gts):
-        row = {"name": name, "psnr": psnr(p, g), "ssim": ssim(p, g)}
+        row = {"name": name, "psnr": image_psnr(p, g), "ssim": ssim(p, g)}
         row["lpips"] = lpips_distance(net, p, g) if net is not None else UNAVAILABLE
         per_view.append(row)
     out = {
@@ -142,40 +142,3 @@ def score_views(preds: list[np.ndarray], gts: list[np.ndarray], names: list[str]
     if net is None:
         out["lpips_reason"] = reason
     return out
-
-
-def save_png(path: Path, img: np.ndarray) -> None:
-    import cv2
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    u8 = (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
-    cv2.imwrite(str(path), cv2.cvtColor(u8, cv2.COLOR_RGB2BGR))
-
-
-def write_json(path: Path, data: dict) -> None:
-    """Atomic JSON write (tmp + rename)."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_json_default))
-    tmp.replace(path)
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def export_transforms(path: Path, cameras: list, images: list[np.ndarray], image_dir: str = "mirrored") -> None:
-    """Blender-format transforms.json of `cameras` (refined mirrored poses) + their PNG images."""
-    root = path.parent
-    frames = []
-    for i, (cam, img) in enumerate(zip(cameras, images)):
-        rel = f"./{image_dir}/{cam.name or f'mirror_{i:02d}'}"
-        save_png(root / (rel + ".png"), img)
-        frames.append({"file_path": rel, "transform_matrix": np.asarray(cam.c2w).tolist()})
-    data = {"camera_angle_x": float(cameras[0].fov_x) if cameras else 0.0, "frames": frames}
-    write_json(path, data)

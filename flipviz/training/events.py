@@ -16,7 +16,9 @@ import numpy as np
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 
-CameraKind = Literal["input", "mirror_init", "mirror_true", "test", "upper"]
+# mirror_init: a mirrored camera at its initial pose; mirror: at its current (BA-refined) pose;
+# mirror_true: the exact reflection through the scene's true symmetry plane.
+CameraKind = Literal["input", "mirror_init", "mirror", "mirror_true", "test", "upper"]
 
 
 @dataclass

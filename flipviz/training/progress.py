@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 from tqdm import tqdm
 
@@ -10,17 +11,23 @@ from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent,
 
 
 class ProgressObserver(Observer):
-    def __init__(self, file=None, disable: bool = False) -> None:
+    """One bar per run. The bench gives each worker its own row (`position`) and label."""
+
+    def __init__(
+        self, file=None, disable: bool = False, label: str | None = None, position: int | None = None,
+        leave: bool = True, bar_cls: Any = tqdm,
+    ) -> None:  # fmt: skip
         self.file = file if file is not None else sys.stderr
-        self.disable = disable
-        self.bar: tqdm | None = None
+        self.disable, self.label, self.position, self.leave, self.bar_cls = disable, label, position, leave, bar_cls
+        self.bar: Any = None
         self.postfix: dict[str, str] = {}
 
     def on_setup(self, event: SetupEvent) -> None:
-        self.bar = tqdm(
-            total=event.total_steps, desc=f"{event.method} {event.scene} cfg{event.config}",
-            unit="step", file=self.file, disable=self.disable, dynamic_ncols=True,
+        desc = f"{event.scene} {self.label or event.method} cfg{event.config}"
+        kw = {} if self.bar_cls is not tqdm else dict(
+            file=self.file, disable=self.disable, dynamic_ncols=True, position=self.position, leave=self.leave
         )  # fmt: skip
+        self.bar = self.bar_cls(total=event.total_steps, desc=desc, unit="step", **kw)
 
     def on_step(self, event: StepEvent) -> None:
         if self.bar is None:
@@ -41,5 +48,5 @@ class ProgressObserver(Observer):
         self.bar.update(max(0, event.step - self.bar.n))
         self.bar.close()
         self.bar = None
-        if event.status != "finished" and event.message:
+        if event.status != "finished" and event.message and self.leave:
             print(f"[flipviz] {event.status}: {event.message}", file=self.file)

@@ -9,27 +9,21 @@ every few seconds, so a killed run still leaves a readable recording; `on_end` f
 
 from __future__ import annotations
 
-import atexit
-import os
-import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from urllib.parse import quote
 
 import numpy as np
 import rerun as rr
 
 from flipviz.data.cameras import Camera
-from flipviz.data.dataset import Plane
+from flipviz.data.images import to_uint8
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent
 from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
+from flipviz.viz.rerun_viewer import RerunWebViewer
 
 APP_ID = "flipviz"
 
@@ -62,49 +56,6 @@ class RerunOptions:
     error_max: float = 0.5  # colour range of the |render - GT| map
 
 
-def _u8(img: np.ndarray) -> np.ndarray:
-    return (np.clip(np.asarray(img, dtype=np.float32), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-
-
-def _free_port(preferred: int) -> int:
-    for port in (preferred, 0):
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return int(s.getsockname()[1])
-    raise RuntimeError("no free TCP port on 127.0.0.1")
-
-
-def _rerun_cli() -> list[str]:
-    """The `rerun` viewer binary shipped with rerun-sdk (or its Python launcher)."""
-    import rerun_cli
-
-    exe = Path(rerun_cli.__file__).parent / "rerun"
-    return [str(exe)] if exe.is_file() else [sys.executable, "-m", "rerun_cli"]
-
-
-def _wait_listening(port: int, timeout_s: float) -> bool:
-    t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return True
-        time.sleep(0.1)
-    return False
-
-
-def _plane_quad(plane: Plane, half: float) -> np.ndarray:
-    """The 4 corners of a square of half-size `half` in `plane`, centred on its point."""
-    n = plane.normal
-    a = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(n, a)
-    p = plane.point
-    return np.stack([p + half * (sa * a + sb * b) for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
-
-
 def camera_paths(cameras: list[CameraInfo]) -> list[str]:
     """Entity path of each camera: world/cameras/<kind>/<name>, made unique within a kind."""
     paths, seen = [], set()
@@ -123,8 +74,7 @@ class RerunObserver(Observer):
     def __init__(self, opts: RerunOptions) -> None:
         self.opts = opts
         self.rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
-        self.viewer_url: str | None = None
-        self._server: subprocess.Popen | None = None
+        self.viewer: RerunWebViewer | None = None
         self._lock = threading.Lock()
         self._last_flush = time.monotonic()
         self._n_step_events = 0
@@ -144,28 +94,12 @@ class RerunObserver(Observer):
             self.opts.path.parent.mkdir(parents=True, exist_ok=True)
             sinks.append(rr.FileSink(str(self.opts.path)))
         if self.opts.serve:
-            sinks.append(rr.GrpcSink(self._start_viewer()))
+            self.viewer = RerunWebViewer.start(self.opts.grpc_port, self.opts.web_port)
+            print(f"Rerun web viewer: {self.viewer.url}", flush=True)
+            sinks.append(rr.GrpcSink(self.viewer.grpc_url))
         if sinks:
             self.rec.set_sinks(*sinks, default_blueprint=blueprint)
         self._sinks_ready = True
-
-    def _start_viewer(self) -> str:
-        """Start `rerun --serve-web` bound to 127.0.0.1 (web viewer + gRPC proxy); return the gRPC URL."""
-        grpc_port = _free_port(self.opts.grpc_port)
-        web_port = _free_port(self.opts.web_port)
-        cmd = [*_rerun_cli(), "--serve-web", "--bind", "127.0.0.1"]
-        cmd += ["--port", str(grpc_port), "--web-viewer-port", str(web_port)]
-        # Its own process group, so that close() stops the viewer and nothing else.
-        self._server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                        start_new_session=True)
-        atexit.register(self.close)
-        if not (_wait_listening(grpc_port, 20.0) and _wait_listening(web_port, 20.0)):
-            self.close()
-            raise RuntimeError("the Rerun web viewer did not start (is `rerun` installed in this environment?)")
-        grpc_url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
-        self.viewer_url = f"http://127.0.0.1:{web_port}/?url={quote(grpc_url, safe='')}"
-        print(f"Rerun web viewer: {self.viewer_url}", flush=True)
-        return grpc_url
 
     def _maybe_flush(self, force: bool = False) -> None:
         if force or time.monotonic() - self._last_flush >= self.opts.flush_every_s:
@@ -185,7 +119,7 @@ class RerunObserver(Observer):
         return rr.DepthImage(self._shrink(a), meter=1.0, colormap=colormap, depth_range=[lo, hi])
 
     def _jpeg(self, img: np.ndarray) -> rr.EncodedImage | rr.Image:
-        return rr.Image(_u8(img)).compress(jpeg_quality=self.opts.jpeg_quality)
+        return rr.Image(to_uint8(img)).compress(jpeg_quality=self.opts.jpeg_quality)
 
     # ------------------------------------------------------------------ events
     def on_setup(self, event: SetupEvent) -> None:
@@ -226,7 +160,7 @@ class RerunObserver(Observer):
                                            ("world/true_plane", e.true_plane, COLORS["mirror_true"], False)):
             if plane is None:
                 continue
-            quad = _plane_quad(plane, 0.6 * r)
+            quad = plane.square(0.6 * r)
             if filled:
                 rec.log(path, rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]],
                                         albedo_factor=(*color, 60)), static=True)
@@ -351,8 +285,8 @@ class RerunObserver(Observer):
             self._maybe_flush(force=True)
             # Finalise the file (footer). A served viewer keeps what it received until close().
             rec.disconnect()
-            if self.viewer_url:
-                print(f"Rerun web viewer (run {event.status}): {self.viewer_url}", flush=True)
+            if self.viewer is not None:
+                print(f"Rerun web viewer (run {event.status}): {self.viewer.url}", flush=True)
 
     def close(self) -> None:
         """Finalise the recording and stop the local web viewer, if one was started."""
@@ -364,13 +298,12 @@ class RerunObserver(Observer):
             self.rec.disconnect()
         except Exception:
             pass
-        if self._server is not None and self._server.poll() is None:
-            os.killpg(self._server.pid, signal.SIGTERM)
-            try:
-                self._server.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                os.killpg(self._server.pid, signal.SIGKILL)
-                self._server.wait(timeout=5)
+        if self.viewer is not None:
+            self.viewer.stop()
+
+    @property
+    def viewer_url(self) -> str | None:
+        return self.viewer.url if self.viewer is not None else None
 
 
 def make_rerun_observer(cfg: TrainConfig, run_dir: Path, **overrides) -> RerunObserver:

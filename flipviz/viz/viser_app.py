@@ -24,10 +24,12 @@ import viser
 
 from flipviz.data import SceneData, load_scene
 from flipviz.data.cameras import Camera
+from flipviz.data.dataset import Plane
 from flipviz.data.protocol import make_split
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.training.config import METHODS, TrainConfig
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
+from flipviz.viz.viser_common import plane_to_arg
 from flipviz.viz.viser_mirror import MirrorLesson
 from flipviz.viz.viser_novel import NovelCameras, SnapToView
 from flipviz.viz.viser_render import RenderWorker, ViewportRenderer
@@ -74,7 +76,10 @@ def _fmt_time(s: float) -> str:
 
 
 class App(Observer):
-    """Viser server + background trainer + GUI. Start with `start()`, end with `stop()`."""
+    """Viser server + background trainer + GUI. Start with `start()`, end with `stop()`.
+
+    It is the `RunView` (viz/run_view.py) its panels read: setup, step, mirror_c2w, render.
+    """
 
     def __init__(self, cfg: AppConfig, scene: SceneData | None = None) -> None:
         self.cfg = cfg
@@ -143,11 +148,11 @@ class App(Observer):
             self.your_view = gui.add_folder("Your view")
         with tabs.add_tab("Views", viser.Icon.CAMERA):
             with gui.add_folder("Snap to view"):
-                self.snap = SnapToView(self)
+                self.snap = SnapToView(self.server, self.worker, self)
             with gui.add_folder("Novel cameras"):
-                self.novel = NovelCameras(self)
+                self.novel = NovelCameras(self.server, self.worker, self)
         with tabs.add_tab("Mirror", viser.Icon.FLIP_VERTICAL):
-            self.mirror = MirrorLesson(self)
+            self.mirror = MirrorLesson(self.server, self.worker, self, self.scene, self.restart_with_plane)
         with tabs.add_tab("Show", viser.Icon.EYE):
             for g, (label, _) in GROUPS.items():
                 cb = gui.add_checkbox(label, self.scene.visible[g])
@@ -155,6 +160,11 @@ class App(Observer):
         self.pause_btn.on_click(lambda _: self.pause())
         self.resume_btn.on_click(lambda _: self.resume())
         self.restart_btn.on_click(lambda _: self.restart(self._restart_config()))
+
+    def restart_with_plane(self, plane: Plane) -> None:
+        """Retrain with `plane` as the mirror plane (with Flip+U unless a Flip method is running)."""
+        method = self.cfg.method if self.cfg.method in ("flip", "flip+u") else "flip+u"
+        self.restart(replace(self.cfg, mirror_plane=plane_to_arg(plane), method=method))
 
     def _restart_config(self) -> AppConfig:
         return replace(
@@ -181,10 +191,10 @@ class App(Observer):
     def _start_run(self, cfg: AppConfig) -> None:
         self.cfg = cfg
         self.status, self.message, self.step = "starting", "", 0
-        self._thread = threading.Thread(target=self._train, args=(cfg, self._gen), name="flipviz-train", daemon=True)
+        self._thread = threading.Thread(target=self._train_thread, args=(cfg, self._gen), name="flipviz-train", daemon=True)
         self._thread.start()
 
-    def _train(self, cfg: AppConfig, gen: int) -> None:
+    def _train_thread(self, cfg: AppConfig, gen: int) -> None:
         from flipviz.training.trainer import Trainer
 
         tcfg = train_config(cfg)

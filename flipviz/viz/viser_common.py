@@ -16,6 +16,7 @@ import viser.transforms as vtf
 
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
+from flipviz.data.images import to_uint8
 
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -40,15 +41,9 @@ def camera_from_viser(wxyz, position, fov_y: float, width: int, height: int, nam
     return Camera(c2w_from_viser(wxyz, position), int(width), int(height), float(focal), name)
 
 
-def plane_wxyz(normal: np.ndarray) -> np.ndarray:
-    """Rotation whose local +z axis is `normal` (the plane gizmo's frame)."""
-    z = np.asarray(normal, dtype=np.float64)
-    z = z / np.linalg.norm(z)
-    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return vtf.SO3.from_matrix(np.stack([x, y, z], 1)).wxyz
+def plane_wxyz(plane: Plane) -> np.ndarray:
+    """Rotation whose local +z axis is the plane's normal (the plane gizmo's frame)."""
+    return vtf.SO3.from_matrix(plane.basis()).wxyz
 
 
 def plane_from_pose(wxyz, position) -> Plane:
@@ -63,16 +58,6 @@ def plane_to_arg(plane: Plane) -> str:
         return ",".join(f"{round(float(x), 5) + 0.0:g}" for x in v)  # + 0.0 turns -0 into 0
 
     return fmt(plane.point) + ";" + fmt(plane.normal)
-
-
-def to_uint8(img: np.ndarray) -> np.ndarray:
-    """float image in [0, 1] (H, W[, 3]) -> uint8 RGB (H, W, 3)."""
-    img = np.asarray(img)
-    if img.dtype != np.uint8:
-        img = (np.clip(np.nan_to_num(img, nan=0.0), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    if img.ndim == 2:
-        img = np.repeat(img[..., None], 3, axis=-1)
-    return np.ascontiguousarray(img[..., :3])
 
 
 def thumbnail(img: np.ndarray, max_side: int = 64) -> np.ndarray:

@@ -11,8 +11,7 @@ flipped image: low where the symmetry assumption fails.
 from __future__ import annotations
 
 import threading
-from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Callable
 
 import numpy as np
 import viser
@@ -22,19 +21,17 @@ from flipviz.data.dataset import Plane
 from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
 from flipviz.geometry.sphere import Sphere
 from flipviz.training.events import ImagesEvent, SetupEvent
-from flipviz.training.evaluate import psnr
+from flipviz.training.evaluate import image_psnr
+from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import (
     plane_from_pose,
-    plane_to_arg,
     plane_wxyz,
     resize_nearest,
     thumbnail,
     to_viser_pose,
 )
-from flipviz.viz.viser_scene import plane_quad
-
-if TYPE_CHECKING:
-    from flipviz.viz.viser_app import App
+from flipviz.viz.viser_render import RenderWorker
+from flipviz.viz.viser_scene import RunScene, plane_quad
 
 LESSON = """**What the mirror assumes.** Just Flip assumes the object is *mirror-symmetric* about a
 plane through the centre of the sphere fitted to the input cameras. Each input image is flipped
@@ -52,9 +49,14 @@ PREVIEW_COLOR = (255, 170, 0)
 
 
 class MirrorLesson:
-    def __init__(self, app: "App") -> None:
-        self.app = app
-        gui = app.server.gui
+    """The Mirror tab: a plane gizmo, live preview frustums, consistency scores, restart with a plane."""
+
+    def __init__(
+        self, server: viser.ViserServer, worker: RenderWorker, run: RunView, scene: RunScene,
+        on_restart: Callable[[Plane], None],
+    ) -> None:  # fmt: skip
+        self.server, self.worker, self.run, self.scene, self.on_restart = server, worker, run, scene, on_restart
+        gui = server.gui
         gui.add_markdown(LESSON)
         self.plane_text = gui.add_markdown("_No run yet._")
         self.show_preview = gui.add_checkbox("Show plane preview", True)
@@ -74,7 +76,7 @@ class MirrorLesson:
         self.moved = False
         self.scores: dict[str, list[float]] = {}
         self._lock = threading.Lock()
-        self.score_btn.on_click(lambda _: self.app.worker.submit("mirror-score", self._score_now, priority=0))
+        self.score_btn.on_click(lambda _: self.worker.submit("mirror-score", self._score_now, priority=0))
         self.reset_btn.on_click(lambda _: self.reset_plane())
         self.restart_btn.on_click(lambda _: self.restart())
         self.show_preview.on_update(lambda _: self._set_preview_visible())
@@ -89,15 +91,16 @@ class MirrorLesson:
             plane = setup.plane
             if plane is None:  # a method without mirrors: show the plane it would use
                 try:
-                    plane = mirror_plane(self.app.cfg.mirror_plane, self.inputs, self.sphere, setup.true_plane)
+                    preset = str(setup.settings.get("mirror_plane", "official"))
+                    plane = mirror_plane(preset, self.inputs, self.sphere, setup.true_plane)
                 except Exception:
                     plane = mirror_plane("opposite", self.inputs, self.sphere)
             self.train_plane = plane
             self.scores = {}
             r = float(setup.sphere_radius)
-            scene = self.app.server.scene
+            scene = self.server.scene
             self.gizmo = scene.add_transform_controls(
-                "/plane", scale=0.35 * r, wxyz=plane_wxyz(plane.normal), position=plane.point, opacity=0.8
+                "/plane", scale=0.35 * r, wxyz=plane_wxyz(plane), position=plane.point, opacity=0.8
             )
             v, f = plane_quad(0.55 * r)
             scene.add_mesh_simple(
@@ -113,8 +116,8 @@ class MirrorLesson:
     def clear(self) -> None:
         with self._lock:
             if self.gizmo is not None:
-                self.app.server.scene.remove_by_name("/plane")
-                self.app.server.scene.remove_by_name("/preview")
+                self.server.scene.remove_by_name("/plane")
+                self.server.scene.remove_by_name("/preview")
             self.gizmo, self.preview, self.preview_cams, self.preview_frame = None, [], [], None
 
     # ---- the plane --------------------------------------------------------------------------
@@ -128,13 +131,13 @@ class MirrorLesson:
         """Move the gizmo (as if dragged) to `plane`."""
         if self.gizmo is None:
             return
-        self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane.normal), plane.point
+        self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane), plane.point
         self.moved = True
         self._apply_plane(plane)
 
     def reset_plane(self) -> None:
         if self.train_plane is not None and self.gizmo is not None:
-            self.gizmo.wxyz, self.gizmo.position = plane_wxyz(self.train_plane.normal), self.train_plane.point
+            self.gizmo.wxyz, self.gizmo.position = plane_wxyz(self.train_plane), self.train_plane.point
             self.moved = False
             self._apply_plane(self.train_plane)
 
@@ -148,9 +151,9 @@ class MirrorLesson:
             self.plane_text.content = f"_Cannot mirror with this plane: {e}_"
             return
         self.plane, self.preview_cams = plane, cams
-        scene = self.app.server.scene
+        scene = self.server.scene
         r = float(self.sphere.radius)
-        with self.app.server.atomic():
+        with self.server.atomic():
             if not self.preview:
                 self.preview_frame = scene.add_frame("/preview", show_axes=False, visible=self._preview_wanted())
                 for k, (cam, img) in enumerate(zip(cams, self.flipped)):
@@ -185,44 +188,40 @@ class MirrorLesson:
             self.preview_frame.visible = self._preview_wanted()
 
     def restart(self) -> None:
-        if self.plane is None:
-            return
-        cfg = replace(self.app.cfg, mirror_plane=plane_to_arg(self.plane))
-        if cfg.method not in ("flip", "flip+u"):
-            cfg = replace(cfg, method="flip+u")  # the plane only matters to the Flip methods
-        self.app.restart(cfg)
+        if self.plane is not None:
+            self.on_restart(self.plane)
 
     # ---- consistency scores -----------------------------------------------------------------
     def on_images(self, event: ImagesEvent) -> None:
         """PSNR of the model rendered from each (BA-refined) mirrored camera vs its flipped image."""
         if event.mirror_views:
-            s = [psnr(v.rgb, v.gt) if v.gt is not None else float("nan") for v in event.mirror_views]
+            s = [image_psnr(v.rgb, v.gt) if v.gt is not None else float("nan") for v in event.mirror_views]
             self.scores[f"BA poses, step {event.step}"] = s
-            self.app.scene.set_mirror_colors(s)
+            self.scene.set_mirror_colors(s)
             self._show_table([v.name for v in event.mirror_views])
 
     def _score_now(self) -> None:
         """Render from the preview poses (plane moved) or the current BA poses, and score them."""
         if self.moved and self.preview_cams:
-            cams, label = self.preview_cams, f"plane preview, step {self.app.step}"
+            cams, label = self.preview_cams, f"plane preview, step {self.run.step}"
         else:
-            c2w = self.app.mirror_c2w
+            c2w = self.run.mirror_c2w
             if c2w is None or len(c2w) != len(self.inputs):
                 cams = mirror_cameras_for_plane(self.inputs, self.train_plane, self.sphere)
             else:
                 cams = [c.with_pose(T) for c, T in zip(self.inputs, c2w)]
-            label = f"BA poses (now), step {self.app.step}"
+            label = f"BA poses (now), step {self.run.step}"
         scores = []
         for cam, gt in zip(cams, self.flipped):
-            out = self.app.render(cam, outputs=("rgb",))
+            out = self.run.render(cam, outputs=("rgb",))
             if out is None or gt is None:
                 scores.append(float("nan"))
                 continue
             rgb = out["rgb"]
-            scores.append(psnr(rgb, resize_nearest(gt, rgb.shape[1], rgb.shape[0])))
+            scores.append(image_psnr(rgb, resize_nearest(gt, rgb.shape[1], rgb.shape[0])))
         self.scores[label] = scores
         if not self.moved:
-            self.app.scene.set_mirror_colors(scores)
+            self.scene.set_mirror_colors(scores)
         self._show_table([f"{c.name}_flip" for c in self.inputs])
 
     def _show_table(self, names: list[str]) -> None:

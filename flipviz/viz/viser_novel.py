@@ -3,25 +3,16 @@
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING
 
 import numpy as np
 import viser
 
-from flipviz.data.cameras import Camera
-from flipviz.training.evaluate import psnr
-from flipviz.viz.viser_common import (
-    OUTPUTS,
-    camera_from_viser,
-    error_map,
-    to_uint8,
-    to_viser_pose,
-    upscale,
-    visualize_output,
-)
-
-if TYPE_CHECKING:
-    from flipviz.viz.viser_app import App
+from flipviz.data.cameras import Camera, look_at
+from flipviz.data.images import to_uint8
+from flipviz.training.evaluate import image_psnr
+from flipviz.viz.run_view import RunView
+from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, error_map, to_viser_pose, upscale, visualize_output
+from flipviz.viz.viser_render import RenderWorker
 
 BLANK = np.full((48, 48, 3), 235, np.uint8)  # placeholder until the first render
 
@@ -29,12 +20,12 @@ BLANK = np.full((48, 48, 3), 235, np.uint8)  # placeholder until the first rende
 class NovelCameras:
     """Draggable cameras (transform gizmo + frustum) and a Render button; shared by all clients."""
 
-    def __init__(self, app: "App") -> None:
-        self.app = app
+    def __init__(self, server: viser.ViserServer, worker: RenderWorker, run: RunView) -> None:
+        self.server, self.worker, self.run = server, worker, run
         self.gizmos: dict[str, viser.TransformControlsHandle] = {}
         self.frustums: dict[str, viser.CameraFrustumHandle] = {}
         self._lock = threading.Lock()
-        gui = app.server.gui
+        gui = server.gui
         self.add_btn = gui.add_button("Add novel camera", icon=viser.Icon.CAMERA_PLUS, hint="At your current view")
         self.select = gui.add_dropdown("Novel camera", ("(none)",))
         self.output = gui.add_dropdown("Novel output", OUTPUTS, initial_value="RGB")
@@ -47,7 +38,7 @@ class NovelCameras:
 
     def add(self, client: viser.ClientHandle | None = None) -> str:
         """Add a novel camera at `client`'s current view (or looking at the sphere centre)."""
-        setup = self.app.setup
+        setup = self.run.setup
         with self._lock:
             name = f"cam{len(self.gizmos)}"
             if client is not None:
@@ -60,13 +51,11 @@ class NovelCameras:
                 center = setup.sphere_center if setup is not None else np.zeros(3)
                 r = setup.sphere_radius if setup is not None else 4.0
                 c = center + r * np.array([0.6, -0.6, 0.5]) / np.linalg.norm([0.6, -0.6, 0.5])
-                from flipviz.geometry.poses import look_at
-
                 wxyz, pos = to_viser_pose(look_at(c, center))
             scale = 0.15 * (setup.sphere_radius if setup is not None else 4.0)
-            g = self.app.server.scene.add_transform_controls(f"/novel/{name}", scale=scale, wxyz=wxyz, position=pos)
+            g = self.server.scene.add_transform_controls(f"/novel/{name}", scale=scale, wxyz=wxyz, position=pos)
             fov, aspect = self._fov_aspect()
-            f = self.app.server.scene.add_camera_frustum(
+            f = self.server.scene.add_camera_frustum(
                 f"/novel/{name}/frustum", fov=fov, aspect=aspect, scale=0.6 * scale, color=(220, 30, 160),
                 thickness=0.02 * scale, cast_shadow=False, receive_shadow=False,
             )  # fmt: skip
@@ -81,43 +70,45 @@ class NovelCameras:
 
         return name
 
+    def _input_camera(self) -> Camera | None:
+        setup = self.run.setup
+        return next((c.camera for c in setup.cameras if c.kind == "input"), None) if setup is not None else None
+
     def _fov_aspect(self) -> tuple[float, float]:
-        setup = self.app.setup
-        cams = [c.camera for c in setup.cameras if c.kind == "input"] if setup is not None else []
-        return (cams[0].fov_y, cams[0].width / cams[0].height) if cams else (0.69, 1.0)
+        cam = self._input_camera()
+        return (cam.fov_y, cam.width / cam.height) if cam is not None else (0.69, 1.0)
 
     def camera(self, name: str) -> Camera | None:
-        g = self.gizmos.get(name)
-        if g is None:
+        """The novel camera `name` at the inputs' field of view and resolution."""
+        g, ref = self.gizmos.get(name), self._input_camera()
+        if g is None or ref is None:
             return None
-        res = int(self.app.cfg.res)
-        fov, aspect = self._fov_aspect()
-        return camera_from_viser(g.wxyz, g.position, fov, res, max(8, round(res / aspect)), name)
+        return camera_from_viser(g.wxyz, g.position, ref.fov_y, ref.width, ref.height, name)
 
     def request(self, name: str, priority: int = 0) -> None:
         if name in self.gizmos:
-            self.app.worker.submit(("novel", name), lambda: self._render(name), priority=priority)
+            self.worker.submit(("novel", name), lambda: self._render(name), priority=priority)
 
     def _render(self, name: str) -> None:
         cam = self.camera(name)
         if cam is None:
             return
-        out = self.app.render(cam)
+        out = self.run.render(cam)
         if out is None:
             self.status.content = "_No model yet: training is starting._"
             return
         img = visualize_output(out, self.output.value)
         self.image.image = upscale(img, 192)
         self.frustums[name].image = img
-        self.status.content = f"`{name}`: {self.output.value}, {cam.width}x{cam.height} px, step {self.app.step}"
+        self.status.content = f"`{name}`: {self.output.value}, {cam.width}x{cam.height} px, step {self.run.step}"
 
 
 class SnapToView:
     """Jump a client's camera to an input / mirrored / test view; show GT, render and error."""
 
-    def __init__(self, app: "App") -> None:
-        self.app = app
-        gui = app.server.gui
+    def __init__(self, server: viser.ViserServer, worker: RenderWorker, run: RunView) -> None:
+        self.worker, self.run = worker, run
+        gui = server.gui
         self.select = gui.add_dropdown("View", ("(none)",))
         self.snap_btn = gui.add_button("Snap to view", icon=viser.Icon.FOCUS_2, hint="Moves your camera there")
         self.text = gui.add_markdown("_Pick a view and snap to it._")
@@ -129,7 +120,7 @@ class SnapToView:
 
     def rebuild(self) -> None:
         """List the run's views (called on every new run)."""
-        setup = self.app.setup
+        setup = self.run.setup
         self.views = {}
         counts: dict[str, int] = {}
         for info in setup.cameras if setup is not None else []:
@@ -146,7 +137,7 @@ class SnapToView:
         if v is None:
             return None
         kind, k, cam, _ = v
-        c2w = self.app.mirror_c2w
+        c2w = self.run.mirror_c2w
         if kind == "mirror_init" and c2w is not None and k < len(c2w):
             cam = cam.with_pose(c2w[k])  # the BA-refined pose
         return cam
@@ -156,15 +147,16 @@ class SnapToView:
         if cam is None:
             return
         if client is not None:
-            move_client_camera(client, cam, self.app.setup.sphere_center if self.app.setup is not None else None)
-        self.app.worker.submit("snap", lambda: self._render(key), priority=0)
+            setup = self.run.setup
+            move_client_camera(client, cam, setup.sphere_center if setup is not None else None)
+        self.worker.submit("snap", lambda: self._render(key), priority=0)
 
     def _render(self, key: str) -> None:
         cam = self.current_camera(key)
         v = self.views.get(key)
         if cam is None or v is None:
             return
-        out = self.app.render(cam)
+        out = self.run.render(cam)
         if out is None:
             return
         gt = v[3]
@@ -172,9 +164,9 @@ class SnapToView:
         if gt is not None:
             self.gt.image = upscale(to_uint8(gt), 160)
             self.err.image = upscale(error_map(out["rgb"], gt), 160)
-            self.text.content = f"**{key}** at step {self.app.step}: PSNR **{psnr(out['rgb'], gt):.2f} dB**"
+            self.text.content = f"**{key}** at step {self.run.step}: PSNR **{image_psnr(out['rgb'], gt):.2f} dB**"
         else:
-            self.text.content = f"**{key}** at step {self.app.step} (no ground truth)"
+            self.text.content = f"**{key}** at step {self.run.step} (no ground truth)"
 
 
 def move_client_camera(client: viser.ClientHandle, cam: Camera, target: np.ndarray | None = None) -> None:

@@ -42,7 +42,7 @@ def add_plane(scene: viser.SceneApi, name: str, plane: Plane, half: float, color
     """A translucent square for `plane`, centred on plane.point."""
     v, f = plane_quad(half)
     return scene.add_mesh_simple(
-        name, v, f, color=color, opacity=opacity, side="double", wxyz=plane_wxyz(plane.normal),
+        name, v, f, color=color, opacity=opacity, side="double", wxyz=plane_wxyz(plane),
         position=plane.point, cast_shadow=False, receive_shadow=False,
     )  # fmt: skip
 

@@ -1,0 +1,89 @@
+"""Run bench tasks in worker processes on this machine, surviving a worker that dies."""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+
+from flipviz.bench.results import RESULT_FILE, STARTED_FILE
+from flipviz.bench.task import RunTask, died_result, execute_run
+
+_SLOT = 0
+
+
+def _init_worker(threads: int, slots) -> None:
+    """Pool initializer: thread share, progress row, and exit when the bench process dies."""
+    global _SLOT
+    import torch
+
+    torch.set_num_threads(max(1, threads))
+    _SLOT = slots.get()
+    parent = os.getppid()
+
+    def watchdog() -> None:  # a killed bench must not leave orphan trainings running
+        while True:
+            time.sleep(1.0)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watchdog, daemon=True).start()
+
+
+def _run_in_worker(task: RunTask) -> dict:
+    task.slot = _SLOT
+    return execute_run(task)
+
+
+def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], None]) -> None:
+    """Run tasks in `workers` spawned processes. If a process dies (e.g. out of memory), the runs
+    it had started are recorded as failed and the rest go on in a fresh pool."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")  # workers inherit OMP_WAIT_POLICY=PASSIVE (set in flipviz/__init__.py)
+    todo = list(tasks)
+    while todo:
+        round_start = time.time()
+        n = max(1, min(workers, len(todo)))
+        slots = ctx.Queue()
+        for i in range(n):
+            slots.put(i)
+        threads = todo[0].threads
+        pool = ProcessPoolExecutor(n, mp_context=ctx, initializer=_init_worker, initargs=(threads, slots))
+        futures = {pool.submit(_run_in_worker, t): t for t in todo}
+        tasks_this_round = list(todo)
+        broken: list[RunTask] = []
+        try:
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for f in done:
+                    try:
+                        on_result(f.result())
+                    except BrokenProcessPool:
+                        broken.append(futures[f])
+        finally:
+            pool.shutdown(wait=not broken, cancel_futures=True)
+        todo = []
+        for t in broken:
+            res = _read_json(Path(t.run_dir) / RESULT_FILE)
+            if res.get("finished", 0) >= round_start:  # finished just before the pool broke
+                on_result(res)
+            elif _read_json(Path(t.run_dir) / STARTED_FILE).get("started", 0) >= round_start:
+                on_result(died_result(t))  # the process died under it
+            else:
+                todo.append(t)  # never started: try again in a fresh pool
+        if todo and len(todo) == len(tasks_this_round):
+            raise RuntimeError("bench worker processes die before starting any run")
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}

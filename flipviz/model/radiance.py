@@ -1,0 +1,131 @@
+"""A radiance field + the volume renderer + the opacity-entropy regulariser, on one device.
+
+    model = RadianceModel(ModelConfig(), scene.bbox, scene.near, scene.far, with_beta=True)
+    opt = model.make_optimizer()
+    for step in range(total_steps):
+        if model.update_schedule(step, total_steps):   # the field re-created its parameters
+            opt = model.make_optimizer()                # (grid upsampled): new Adam state
+        model.adjust_lr(opt, step, total_steps)
+        out = model.render_rays(origins, dirs, training=True)    # rgb (R,3), beta2 (R,), ...
+        loss = <objective>(out, target) + model.regulariser()
+        opt.zero_grad(); loss.backward(); opt.step()
+
+The field (`GridConfig` or `NerfConfig`, each with its own knobs) owns its schedule and optimiser
+settings; the model adds what every field shares: ray sampling and the beta^2 compositing settings.
+`state_dict()` / `load_state_dict()` round-trip exactly (grid resolution and occupancy mask
+included) into a fresh model of the same config.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from flipviz.data.cameras import Camera
+from flipviz.model.grid_field import GridConfig
+from flipviz.model.nerf_field import NerfConfig
+from flipviz.model.optim import decay_lr
+from flipviz.model.renderer import render_rays
+
+
+@dataclass
+class ModelConfig:
+    field: GridConfig | NerfConfig = field(default_factory=GridConfig)
+    """GridConfig: dense voxel grid (fast, default); NerfConfig: vanilla NeRF MLP (the paper's)."""
+    n_samples: int = 64
+    """Samples per ray inside the scene box (training and rendering)."""
+    beta_min: float = 0.1
+    """beta_bar^2 = beta_min^2 + softplus(raw) (Sec. IV-C)."""
+    beta_init: float = 0.1
+    """Initial per-sample softplus(raw) = beta_init^2."""
+    beta2_mode: Literal["linear", "variance"] = "linear"
+    """Compositing of beta_bar^2: linear sum w beta^2 (official code) or sum w^2 beta^2."""
+    w_entropy: float = 1e-3
+    """Weight of the opacity-entropy term (DVGO's weight_entropy_last): pushes every ray to be
+    fully opaque or fully transparent, which removes the white fog a white background allows."""
+
+
+class RadianceModel(nn.Module):
+    def __init__(
+        self,
+        cfg: ModelConfig,
+        bbox: np.ndarray,
+        near: float,
+        far: float,
+        with_beta: bool,
+        device: torch.device | str = "cpu",
+    ):
+        super().__init__()
+        bbox = np.asarray(bbox, dtype=np.float64)
+        if bbox.shape != (2, 3) or not np.all(bbox[1] > bbox[0]):
+            raise ValueError(f"bbox must be (2,3) with max > min, got {bbox.tolist()}")
+        if not 0.0 <= near < far:
+            raise ValueError(f"need 0 <= near < far, got near={near}, far={far}")
+        self.cfg = cfg
+        self.near, self.far, self.with_beta = float(near), float(far), bool(with_beta)
+        self.device = torch.device(device)
+        self.register_buffer("bbox", torch.as_tensor(bbox, dtype=torch.float32, device=self.device))
+        self.field = cfg.field.build(bbox, self.with_beta, cfg.beta_init, self.device)
+        self._pending_opacity: list[Tensor] = []
+
+    # --- rendering -----------------------------------------------------------------------
+    def render_rays(self, origins: Tensor, dirs: Tensor, *, training: bool) -> dict[str, Tensor]:
+        """rgb (R,3) on white, depth (R,), opacity (R,), sigma_mean (R,), beta2 (R,) if with_beta.
+
+        With training=True, samples are jittered and the batch's opacities are remembered for
+        the entropy term of the next `regulariser()` call.
+        """
+        out = render_rays(
+            self.field, origins, dirs, bbox=self.bbox, near=self.near, far=self.far, n_samples=self.cfg.n_samples,
+            training=training, beta_min=self.cfg.beta_min, beta2_mode=self.cfg.beta2_mode,
+        )  # fmt: skip
+        if training and self.cfg.w_entropy > 0 and torch.is_grad_enabled():
+            self._pending_opacity = self._pending_opacity[-15:] + [out["opacity"]]  # bounded
+        return out
+
+    @torch.no_grad()
+    def render_image(self, camera: Camera, chunk: int = 16384) -> dict[str, np.ndarray]:
+        """Render a whole image (no grad): rgb (H,W,3), depth, opacity (and beta2) (H,W) float32."""
+        o, d = (torch.from_numpy(a).to(self.device) for a in camera.rays())
+        parts: dict[str, list[Tensor]] = {}
+        for i in range(0, o.shape[0], chunk):
+            for k, v in self.render_rays(o[i : i + chunk], d[i : i + chunk], training=False).items():
+                parts.setdefault(k, []).append(v)
+        shape = (camera.height, camera.width)
+        return {
+            k: torch.cat(v).float().cpu().numpy().reshape(shape + v[0].shape[1:])  # (H, W, 3) or (H, W)
+            for k, v in parts.items()
+            if k != "sigma_mean"
+        }
+
+    # --- optimisation --------------------------------------------------------------------
+    def make_optimizer(self) -> torch.optim.Optimizer:
+        """The field's optimiser over its current parameters (rebuild it when update_schedule says so)."""
+        return self.field.make_optimizer()
+
+    def adjust_lr(self, optimizer: torch.optim.Optimizer, step: int, total_steps: int) -> None:
+        """Exponential decay lr0 -> lr0 * lr_decay over training."""
+        decay_lr(optimizer, step, total_steps, self.cfg.field.lr_decay)
+
+    def update_schedule(self, step: int, total_steps: int) -> bool:
+        """The field's schedule (call every step, before rendering). True: its parameters are new."""
+        return self.field.update_schedule(step, total_steps, self.sample_spacing())
+
+    def sample_spacing(self) -> float:
+        """Typical distance between samples: the box diagonal over n_samples."""
+        return float((self.bbox[1] - self.bbox[0]).norm()) / self.cfg.n_samples
+
+    def regulariser(self) -> Tensor:
+        """Already weighted: the field's own (TV on the grids; none for the NeRF MLP) plus
+        w_entropy * mean binary entropy of the opacities of the rays rendered with training=True
+        since the last call (add it once per optimisation step)."""
+        r = self.field.regulariser()
+        if self._pending_opacity:
+            a = torch.cat(self._pending_opacity).clamp(1e-6, 1 - 1e-6)
+            self._pending_opacity = []
+            r = r + self.cfg.w_entropy * (-(a * torch.log(a) + (1 - a) * torch.log(1 - a))).mean()
+        return r

@@ -1,0 +1,63 @@
+"""Everything a run trains with, built once from its config and scene, in the paper's order.
+
+    split      = the protocol's inputs / unobserved tests / Upper views     (data/protocol.py)
+    mirrors    = flipped inputs with their initial poses                    (flip.py, step 1)
+    training   = the method's views and their ray bank                      (methods.py)
+    model      = radiance field + renderer                                  (model/radiance.py)
+    refiner    = BA of the mirrored poses                                   (flip.py, step 2)
+    objective  = MSE, then the NLL on uncertain rays                        (flip.py, step 3)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from flipviz.data.dataset import SceneData
+from flipviz.data.protocol import Split, make_split
+from flipviz.geometry.mirror import MirrorSet
+from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, PoseRefiner, RadianceModel
+from flipviz.training import flip
+from flipviz.training.config import TrainConfig
+from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
+
+
+@dataclass
+class RunSetup:
+    scene: SceneData
+    spec: MethodSpec
+    split: Split
+    mirrors: MirrorSet  # built for every method, so that the app can show the would-be mirrors
+    training: TrainingSet
+    model: RadianceModel
+    refiner: PoseRefiner | None
+    objective: Objective
+
+
+def model_config(cfg: TrainConfig) -> ModelConfig:
+    """The model of a run: the field's defaults, with the run's samples and grid resolutions."""
+    field: GridConfig | NerfConfig
+    if cfg.field == "nerf":
+        ba = cfg.ba and cfg.method in ("flip", "flip+u")
+        field = NerfConfig(barf_c2f=(0.1, 0.5) if ba else None)  # BARF's coarse-to-fine PE with BA
+    elif cfg.grid_res is not None:
+        n_up = len(cfg.grid_res) - 1  # upsample at evenly spread fractions of the first half
+        field = GridConfig(grid_res=tuple(cfg.grid_res), upsample_at=tuple(0.5 * (i + 1) / (n_up + 1) for i in range(n_up)))
+    else:
+        field = GridConfig()
+    return ModelConfig(field=field, n_samples=cfg.n_samples, beta2_mode=cfg.beta2_mode)
+
+
+def build_run(cfg: TrainConfig, scene: SceneData) -> RunSetup:
+    device = torch.device(cfg.device)
+    spec = method_spec(cfg)
+    split = make_split(scene, cfg.config)
+    mirrors = flip.mirrored_views(cfg, split.inputs, scene.symmetry_plane)
+    training = build_training_set(
+        spec, split.inputs, flip.mirrored_train_views(spec, mirrors), split.uppers, device=device
+    )
+    mcfg = model_config(cfg)
+    model = RadianceModel(mcfg, scene.bbox, scene.near, scene.far, with_beta=spec.uses_beta, device=device)
+    refiner = flip.pose_refiner(training, cfg.steps, device)
+    return RunSetup(scene, spec, split, mirrors, training, model, refiner, flip.objective(cfg, mcfg.beta_min))
