@@ -1,7 +1,7 @@
 """Training speed of the app with 0, 1 and 4 browser clients dragging their cameras.
 
 Starts the real app (real trainer) in-process and connects real websocket clients on loopback
-(flipviz.viz.viser_wsclient, viser's protocol) from a second process, as browsers would be.
+(tests/viser_client.py, viser's protocol) from a second process, as browsers would be.
 Each client orbits its camera at 30 Hz for 2 s, holds still for 1 s (so the app renders its
 view at full resolution), and repeats until the phase ends; every client reads everything the
 server sends (background images included). Training speed = trainer steps / wall seconds in
@@ -26,9 +26,10 @@ from pathlib import Path
 import numpy as np
 import tyro
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
-from flipviz.viz.viser_app import App, AppConfig
-from flipviz.viz.viser_wsclient import ViserTestClient
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # a checkout without installing; the test client
+from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
+from viser_client import ViserTestClient  # noqa: E402
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """Engine benchmark (a script, not a test): is the grid engine fast enough to teach with?
 
-For the built-in chair and the real lego (when $FLIPVIZ_LEGO, ../shared/data/nerf_synthetic/lego or --lego
-exists) at 100 px, protocol configuration 1, method Flip+U:
+For the built-in chair and the real lego (when --lego, $FLIPVIZ_LEGO or ../shared/data/nerf_synthetic/lego beside the
+checkout exists) at 100 px, protocol configuration 1, method Flip+U:
   - seconds per training step,
   - seconds of training to reach the final unobserved-view PSNR within 0.5 dB,
   - render time of a 200x200 view,
@@ -16,15 +16,15 @@ Timings on a shared CPU are noisy (20% or more): run it on an idle machine.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import tempfile
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import tyro
 
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import ImagesEvent, Observer
@@ -40,7 +40,7 @@ class Curve(Observer):
         self.trainer, self.seconds, self.points = trainer, seconds, []
 
     def on_images(self, e: ImagesEvent) -> None:
-        self.points.append((self.trainer._t_train, e.step, e.scalars.get("test_psnr", float("nan"))))
+        self.points.append((self.trainer.train_seconds, e.step, e.scalars.get("test_psnr", float("nan"))))
 
     def on_step(self, e) -> None:
         if self.seconds is not None and e.elapsed_s > self.seconds:
@@ -73,27 +73,33 @@ def run_curve(cfg: TrainConfig, eval_every: int, seconds: float | None = None) -
     final = m["psnr"]
     points = curve.points
     if not points or points[-1][1] != tr.step:  # make sure the final value is on the curve
-        points.append((tr._t_train, tr.step, final))
+        points.append((tr.train_seconds, tr.step, final))
     t_conv, s_conv = time_to_within(points, final)
     return {
         "field": cfg.field, "scene": m["scene"], "method": cfg.method, "steps": tr.step,
-        "final_psnr": final, "ssim": m["ssim"], "train_seconds": tr._t_train,
-        "s_per_step": tr._t_train / max(tr.step, 1), "seconds_to_final_0.5dB": t_conv, "step_to_final_0.5dB": s_conv,
+        "final_psnr": final, "ssim": m["ssim"], "train_seconds": tr.train_seconds,
+        "s_per_step": tr.train_seconds / max(tr.step, 1), "seconds_to_final_0.5dB": t_conv, "step_to_final_0.5dB": s_conv,
         "render_200_ms": render_ms(tr), "curve": [(round(t, 1), s, round(p, 2)) for t, s, p in points],
     }  # fmt: skip
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", default="chair,lego")
-    ap.add_argument("--lego", type=Path, default=LEGO)
-    ap.add_argument("--steps", type=int, default=None, help="grid steps (default: TrainConfig.steps)")
-    ap.add_argument("--eval-every", type=int, default=100)
-    ap.add_argument("--nerf-seconds", type=float, default=300.0, help="vanilla NeRF time budget")
-    ap.add_argument("--nerf-eval-every", type=int, default=25)
-    ap.add_argument("--res", type=int, default=100)
-    ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
+@dataclass
+class Args:
+    """Engine benchmark: grid Flip+U against vanilla NeRF."""
+
+    scenes: str = "chair,lego"
+    lego: Path = LEGO
+    steps: int | None = None
+    """Grid steps (default: TrainConfig.steps)."""
+    eval_every: int = 100
+    nerf_seconds: float = 300.0
+    """Vanilla NeRF time budget."""
+    nerf_eval_every: int = 25
+    res: int = 100
+    out: Path | None = None
+
+
+def main(args: Args) -> None:
     os.environ.setdefault("FLIPVIZ_CACHE", str(Path(tempfile.gettempdir()) / "flipviz-bench-cache"))
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_engine_"))
     rows = []
@@ -132,4 +138,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(tyro.cli(Args))

@@ -35,6 +35,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from flipviz.model.encoding import posenc
+from flipviz.model.field_base import BoxField
 from flipviz.model.optim import adam
 
 
@@ -88,15 +89,12 @@ def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
     return tuple(max(8, int(round(res * e / ext.max()))) for e in ext)  # type: ignore[return-value]
 
 
-class GridField(nn.Module):
+class GridField(BoxField):
     def __init__(
         self, cfg: GridConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu"
     ):
-        super().__init__()
+        super().__init__(bbox, with_beta, device)
         self.cfg = cfg
-        self.with_beta = with_beta
-        self.register_buffer("lo", torch.as_tensor(bbox[0], dtype=torch.float32, device=device))
-        self.register_buffer("hi", torch.as_tensor(bbox[1], dtype=torch.float32, device=device))
         ext = np.asarray(bbox[1], dtype=np.float64) - np.asarray(bbox[0], dtype=np.float64)
         self.voxel0 = float(ext.max() / (cfg.grid_res[0] - 1))  # the scale s of the module docstring
         # shift: softplus(shift) * (voxel0 / s) = -log(1 - alpha_init)  (alpha of one voxel)
@@ -150,12 +148,9 @@ class GridField(nn.Module):
         return sigma.view(R, N), colour
 
     # --- lookups -------------------------------------------------------------------------
-    def _normalise(self, x: Tensor) -> Tensor:
-        return (x - self.lo) / (self.hi - self.lo) * 2.0 - 1.0  # grid_sample's [-1, 1]
-
     def _sample(self, vol: Tensor, x: Tensor) -> Tensor:
         """Trilinear lookup of C single-channel volumes (C,1,Z,Y,X) at points (P,3) -> (P,C)."""
-        g = self._normalise(x).view(1, 1, 1, -1, 3).expand(vol.shape[0], 1, 1, -1, 3)
+        g = self.normalise(x).view(1, 1, 1, -1, 3).expand(vol.shape[0], 1, 1, -1, 3)
         return F.grid_sample(vol, g, mode="bilinear", padding_mode="border", align_corners=True).view(
             vol.shape[0], -1
         ).t()

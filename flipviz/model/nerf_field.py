@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from flipviz.model.encoding import posenc
+from flipviz.model.field_base import BoxField
 from flipviz.model.optim import adam
 
 
@@ -47,15 +48,12 @@ class NerfConfig:
         return NerfField(self, bbox, with_beta, beta_init, device)
 
 
-class NerfField(nn.Module):
+class NerfField(BoxField):
     def __init__(
         self, cfg: NerfConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu"
     ):
-        super().__init__()
+        super().__init__(bbox, with_beta, device)
         self.cfg = cfg
-        self.with_beta = with_beta
-        self.register_buffer("lo", torch.as_tensor(bbox[0], dtype=torch.float32, device=device))
-        self.register_buffer("hi", torch.as_tensor(bbox[1], dtype=torch.float32, device=device))
         self.register_buffer("progress", torch.ones((), device=device))  # for BARF's c2f schedule
         W, L, Ld = cfg.width, cfg.pe, cfg.dir_pe
         in_x, in_d = 3 + 6 * L, 3 + 6 * Ld
@@ -88,8 +86,7 @@ class NerfField(nn.Module):
 
     def forward(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
         """x, d (P, 3) -> sigma (P,), rgb (P, 3), beta raw (P,) or None."""
-        xn = (x - self.lo) / (self.hi - self.lo) * 2.0 - 1.0
-        px = posenc(xn, self.cfg.pe, math.pi, self.barf_weights())
+        px = posenc(self.normalise(x), self.cfg.pe, math.pi, self.barf_weights())
         h = px
         for i, layer in enumerate(self.trunk):
             if i == self.skip and i > 0:

@@ -1,0 +1,89 @@
+"""The layering of flipviz/: no import cycles, and imports only run down the layers.
+
+    flipviz (errors, files) -> data -> geometry -> model -> training -> viz -> bench -> cli / app
+
+Every import counts: module level, inside functions, and under TYPE_CHECKING.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parents[1] / "flipviz"
+LAYERS = ("", "data", "geometry", "model", "training", "viz", "bench", "cli")
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PKG.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def modules() -> dict[str, Path]:
+    return {module_name(p): p for p in PKG.rglob("*.py")}
+
+
+def imports(path: Path, known: set[str]) -> set[str]:
+    """The flipviz modules `path` imports (a name imported from a package is its submodule when one exists)."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith("flipviz")}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("flipviz"):
+            for a in node.names:
+                sub = f"{node.module}.{a.name}"
+                out.add(sub if sub in known else node.module)
+    return out & known
+
+
+def graph() -> dict[str, set[str]]:
+    mods = modules()
+    return {m: imports(p, set(mods)) - {m} for m, p in mods.items()}
+
+
+def layer(mod: str) -> int:
+    parts = mod.split(".")
+    if parts[-1] == "__main__" or mod == "flipviz.cli":
+        return LAYERS.index("cli")
+    name = parts[1] if len(parts) > 2 or (len(parts) == 2 and parts[1] in LAYERS) else ""
+    return LAYERS.index(name)
+
+
+def find_cycle(g: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}  # 1 on the stack, 2 done
+    stack: list[str] = []
+
+    def visit(m: str) -> list[str] | None:
+        state[m] = 1
+        stack.append(m)
+        for n in sorted(g[m]):
+            if state.get(n) == 1:
+                return stack[stack.index(n):] + [n]
+            if n not in state and (c := visit(n)):
+                return c
+        stack.pop()
+        state[m] = 2
+        return None
+
+    for m in sorted(g):
+        if m not in state and (c := visit(m)):
+            return c
+    return None
+
+
+def test_the_walker_sees_imports():
+    g = graph()
+    assert "flipviz.model.objective" in g["flipviz.training.flip"]
+    assert "flipviz.training.trainer" in g["flipviz.training"]  # a lazy import inside a function
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_no_import_cycles():
+    assert find_cycle(graph()) is None
+
+
+def test_imports_only_run_down_the_layers():
+    bad = [f"{m} ({LAYERS[layer(m)] or 'base'}) imports {n} ({LAYERS[layer(n)] or 'base'})"
+           for m, ns in graph().items() for n in ns if layer(n) > layer(m)]  # fmt: skip
+    assert not bad, "\n".join(bad)

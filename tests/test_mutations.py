@@ -1,0 +1,17 @@
+"""The mutations of benchmarks/check_mutations.py still apply to the current source."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_mutation_edits_exactly_one_place():
+    spec = importlib.util.spec_from_file_location("check_mutations", ROOT / "benchmarks" / "check_mutations.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert len(mod.MUTATIONS) == 5
+    for m in mod.MUTATIONS:
+        assert (ROOT / m.path).read_text().count(m.old) == 1, m.name
