@@ -281,3 +281,7 @@ class GridField(BoxField):
         """Current grid shape (Z, Y, X)."""
         return tuple(self.density_grid.shape[2:])  # type: ignore[return-value]
 
+    def lattice_shape(self) -> tuple[int, int, int]:
+        """(Z, Y, X) of the lattice a point cloud of this field is sampled on: its own voxels."""
+        return self.resolution
+

@@ -97,6 +97,17 @@ class NerfField(BoxField):
         out = self.out(F.relu(self.view(h)))
         return sigma, torch.sigmoid(out[:, :3]), (out[:, 3] if self.with_beta else None)
 
+    def density(self, x: Tensor) -> Tensor:
+        return self(x, torch.zeros_like(x))[0]
+
+    def color(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor | None]:
+        _, rgb, raw = self(x, d)
+        return rgb, raw
+
+    def lattice_shape(self) -> tuple[int, int, int]:
+        """(Z, Y, X) of the lattice a point cloud of this field is sampled on (an MLP has no voxels)."""
+        return (48, 48, 48)
+
     def query(self, x: Tensor, d: Tensor) -> tuple[Tensor, Callable[[Tensor], tuple[Tensor, Tensor, Tensor | None]]]:
         """Densities of samples x (R, N, 3) on rays d (R, 3); colour is computed with them, for all samples."""
         R, N = x.shape[:2]

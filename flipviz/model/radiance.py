@@ -102,6 +102,44 @@ class RadianceModel(nn.Module):
             if k != "sigma_mean"
         }
 
+    @torch.no_grad()
+    def point_cloud(self, min_alpha: float = 0.05, max_points: int = 150_000, chunk: int = 65536) -> dict[str, np.ndarray]:
+        """The field as coloured points, for a live 3D preview (paper-independent; no rendering).
+
+        Points are the lattice cells (the grid's own voxels; 48^3 for the MLP) whose opacity over
+        one cell, alpha = 1 - exp(-sigma * cell), exceeds `min_alpha`, the `max_points` most opaque
+        of them. Returns points (P, 3), rgb (P, 3) (mean over four horizontal view directions),
+        alpha (P,), density (P,), beta2 (P,) = beta_min^2 + softplus(raw) per point (with a beta
+        head), and cell: the cell size.
+        """
+        Z, Y, X = self.field.lattice_shape()
+        lo, hi = self.bbox[0], self.bbox[1]
+        axes = [torch.linspace(float(lo[i]), float(hi[i]), n, device=self.device) for i, n in enumerate((X, Y, Z))]
+        zz, yy, xx = torch.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+        pts = torch.stack([xx, yy, zz], -1).reshape(-1, 3)  # (Z Y X, 3)
+        cell = float(((hi - lo) / torch.tensor([X - 1, Y - 1, Z - 1], device=self.device)).max())
+        sigma = torch.cat([self.field.density(pts[i : i + chunk]) for i in range(0, len(pts), chunk)])
+        alpha = 1.0 - torch.exp(-sigma * cell)
+        keep = torch.nonzero(alpha > min_alpha).squeeze(-1)
+        if keep.numel() > max_points:
+            keep = keep[torch.topk(alpha[keep], max_points).indices]
+        p = pts[keep]
+        dirs = torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, -1.0, 0]], device=self.device)
+        rgb = torch.zeros(len(p), 3, device=self.device)
+        raw = torch.zeros(len(p), device=self.device)
+        for d in dirs:
+            for i in range(0, len(p), chunk):
+                c, r = self.field.color(p[i : i + chunk], d.expand(len(p[i : i + chunk]), 3))
+                rgb[i : i + chunk] += c / len(dirs)
+                if r is not None:
+                    raw[i : i + chunk] += r / len(dirs)
+        out = {"points": p, "rgb": rgb, "alpha": alpha[keep], "density": sigma[keep]}
+        if self.with_beta:
+            out["beta2"] = self.cfg.beta_min**2 + torch.nn.functional.softplus(raw)
+        res = {k: v.float().cpu().numpy() for k, v in out.items()}
+        res["cell"] = np.float32(cell)
+        return res
+
     # --- optimisation --------------------------------------------------------------------
     def make_optimizer(self) -> torch.optim.Optimizer:
         """The field's optimiser over its current parameters (rebuild it when update_schedule says so)."""

@@ -114,6 +114,12 @@ class Trainer:
             out = self.model.render_image(camera)
         return {k: out[k] for k in outputs if k in out}
 
+    @torch.no_grad()
+    def point_cloud(self, min_alpha: float = 0.05, max_points: int = 150_000) -> dict[str, np.ndarray]:
+        """The current field as coloured points (see RadianceModel.point_cloud); thread-safe."""
+        with self._lock:
+            return self.model.point_cloud(min_alpha, max_points)
+
     # ------------------------------------------------------------------ poses
     def current_poses(self) -> torch.Tensor:
         """(V, 4, 4) current poses of all training views (refined where BA is on)."""

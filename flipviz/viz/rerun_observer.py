@@ -22,19 +22,13 @@ from flipviz.data.cameras import Camera
 from flipviz.data.images import to_uint8
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent
+from flipviz.viz import palette
 from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
 from flipviz.viz.rerun_viewer import RerunWebViewer
 
 APP_ID = "flipviz"
 
-COLORS: dict[str, tuple[int, int, int]] = {
-    "input": (30, 120, 255),  # blue
-    "test": (40, 170, 70),  # green
-    "mirror_init": (255, 150, 0),  # orange
-    "mirror": (230, 40, 40),  # red: the refined mirrored cameras
-    "mirror_true": (150, 60, 200),  # purple
-    "upper": (0, 180, 200),  # teal
-}
+COLORS = palette.CAMERA  # the app's colours: the same thing looks the same in both
 
 
 @dataclass
@@ -52,8 +46,8 @@ class RerunOptions:
     # beta^2 colour range, fixed for the whole run so frames compare (raw values are stored unclipped).
     # Its floor is beta_min^2 = 0.01; at the NLL optimum beta^2 = ||C - C_hat||^2 (Sec. IV-C), and on the
     # chair most symmetry-breaking pixels stay below 0.1 (measured, step 700 at 48 px).
-    beta2_range: tuple[float, float] = (0.0, 0.1)
-    error_max: float = 0.5  # colour range of the |render - GT| map
+    beta2_range: tuple[float, float] = palette.BETA2_RANGE
+    error_max: float = palette.ERROR_RANGE[1]  # colour range of the |render - GT| map
 
 
 def camera_paths(cameras: list[CameraInfo]) -> list[str]:
@@ -146,18 +140,18 @@ class RerunObserver(Observer):
         rec.log(
             "world/sphere",
             rr.Ellipsoids3D(
-                centers=[c], half_sizes=[[r, r, r]], colors=[(120, 120, 120)], fill_mode="majorwireframe",
+                centers=[c], half_sizes=[[r, r, r]], colors=[palette.SPHERE], fill_mode="majorwireframe",
                 line_radii=0.004, labels=["least-squares sphere"],
             ),
             static=True,
         )
-        rec.log("world/sphere/center", rr.Points3D([c], radii=0.03, colors=[(120, 120, 120)]), static=True)
+        rec.log("world/sphere/center", rr.Points3D([c], radii=0.03, colors=[palette.SPHERE]), static=True)
         rec.log("world/bbox", rr.Boxes3D(mins=[e.bbox[0]], sizes=[e.bbox[1] - e.bbox[0]], colors=[(90, 90, 90)],
                                             fill_mode="majorwireframe", radii=0.003),
                 static=True)
         # The mirror plane used: a translucent square with its normal; the true plane: an outline.
-        for path, plane, color, filled in (("world/mirror_plane", e.plane, COLORS["mirror_init"], True),
-                                           ("world/true_plane", e.true_plane, COLORS["mirror_true"], False)):
+        for path, plane, color, filled in (("world/mirror_plane", e.plane, palette.MIRROR_PLANE, True),
+                                           ("world/true_plane", e.true_plane, palette.TRUE_PLANE, False)):
             if plane is None:
                 continue
             quad = plane.square(0.6 * r)
@@ -264,14 +258,14 @@ class RerunObserver(Observer):
         rec = self.rec
         rec.log(f"{base}/render", self._jpeg(v.rgb))
         near, far = self._depth_range
-        rec.log(f"{base}/depth", self._map(v.depth, "turbo", near, far))
-        rec.log(f"{base}/opacity", self._map(v.opacity, "grayscale", 0.0, 1.0))
+        rec.log(f"{base}/depth", self._map(v.depth, palette.SCALAR_CMAP, near, far))
+        rec.log(f"{base}/opacity", self._map(v.opacity, palette.SCALAR_CMAP, 0.0, 1.0))
         if v.gt is not None:
             self._log_gt(f"{base}/{gt_name}", v.gt)
             err = np.abs(np.asarray(v.rgb, np.float32) - np.asarray(v.gt, np.float32)).mean(-1)
-            rec.log(f"{base}/error", self._map(err, "inferno", 0.0, self.opts.error_max))
+            rec.log(f"{base}/error", self._map(err, palette.SCALAR_CMAP, 0.0, self.opts.error_max))
         if v.beta2 is not None:
-            rec.log(f"{base}/beta2", self._map(v.beta2, "viridis", *self.opts.beta2_range))
+            rec.log(f"{base}/beta2", self._map(v.beta2, palette.SCALAR_CMAP, *self.opts.beta2_range))
 
     def on_end(self, event: EndEvent) -> None:
         with self._lock:

@@ -2,12 +2,13 @@
 
 `run_app(cfg)` serves viser on cfg.host:cfg.port and trains with the real `Trainer` in a
 background thread (recording Rerun unless --no-rrd). The app is an `Observer` of the trainer:
-events are copied in the trainer's thread and drawn by a UI thread at a few Hz; it acts on
-training only through the trainer's public methods (render, pause, resume, stop). All renders
-go through one duty-cycled `RenderWorker`, so browsers never stall training for long.
+events are copied in the trainer's thread and drawn by a UI thread a few times a second; it acts
+on training only through the trainer's public methods (render, point_cloud, pause, resume, stop).
+All renders go through one duty-cycled `RenderWorker`, so browsers never stall training for long.
 
-Modules: viser_scene (3D scene of a run), viser_render (render worker, each client's own view),
-viser_novel (novel cameras, snap to view), viser_mirror (the symmetry lesson).
+The app is the `RunView` (viz/run_view.py) its panels read. Panels: viser_train (the Train tab),
+viser_render (each browser's own view), viser_preview (the live 3D preview), viser_novel (novel
+cameras, snap to view), viser_mirror (the symmetry lesson), viser_scene (the run's 3D scene).
 """
 
 from __future__ import annotations
@@ -27,13 +28,17 @@ from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.data.protocol import make_split
 from flipviz.geometry.mirror import make_mirror_set
-from flipviz.training.config import METHODS, TrainConfig
+from flipviz.training.checkpoint import CHECKPOINT_NAME
+from flipviz.training.config import TrainConfig
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
+from flipviz.viz import palette
 from flipviz.viz.viser_common import plane_to_arg
 from flipviz.viz.viser_mirror import MirrorLesson
 from flipviz.viz.viser_novel import NovelCameras, SnapToView
+from flipviz.viz.viser_preview import LivePreview
 from flipviz.viz.viser_render import RenderWorker, ViewportRenderer
 from flipviz.viz.viser_scene import GROUPS, RunScene
+from flipviz.viz.viser_train import RunChoice, TrainPanel
 
 log = logging.getLogger("flipviz.app")
 
@@ -42,16 +47,21 @@ log = logging.getLogger("flipviz.app")
 class AppConfig(TrainConfig):
     """A training run plus the browser app that shows it (`python app.py --scene chair`)."""
 
+    steps: int = 3000
+    """Optimisation steps. More than `flipviz train`'s 600, so that a newcomer watches training
+    happen (about 2-3 minutes on 2 cores); the Train tab restarts with any other count."""
     port: int = 8080
     """Port of the web app (the next free one is used when it is busy)."""
     host: str = "127.0.0.1"
     """Address to bind; 127.0.0.1 keeps the app local to this machine."""
     open_browser: bool = False
     """Open the app in the default web browser."""
-    view_width: int = 192
-    """Width in pixels of the render of your own (still) browser view; a third of it while moving."""
+    view_width: int = 1024
+    """Default "max resolution" (pixels, width) of the render of your own still view."""
     render_duty: float = 0.25
     """At most this fraction of wall time goes to browser renders (they share the trainer's lock)."""
+    keep_restart_checkpoints: bool = False
+    """Keep the checkpoint.pt of runs replaced by an in-app restart (each is tens of MB)."""
 
 
 def train_config(cfg: TrainConfig) -> TrainConfig:
@@ -70,19 +80,12 @@ def check_run_input(cfg: TrainConfig) -> SceneData:
     return scene
 
 
-def _fmt_time(s: float) -> str:
-    s = max(0, int(round(s)))
-    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
-
-
 class App(Observer):
-    """Viser server + background trainer + GUI. Start with `start()`, end with `stop()`.
-
-    It is the `RunView` (viz/run_view.py) its panels read: setup, step, mirror_c2w, render.
-    """
+    """Viser server + background trainer + GUI. Start with `start()`, end with `stop()`."""
 
     def __init__(self, cfg: AppConfig, scene: SceneData | None = None) -> None:
         self.cfg = cfg
+        self._base_out = cfg.out  # restarts write beside it: <out>-restart1, <out>-restart2, ...
         self._preloaded = (_scene_key(cfg), scene) if scene is not None else None  # for the first run
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, label="flipviz", verbose=False)
         self._set_initial_camera(np.zeros(3), 4.0)
@@ -98,6 +101,7 @@ class App(Observer):
         self.status = "starting"
         self.message = ""
         self.restarts = 0
+        self.run_dirs: list[Path] = []  # every run folder this app wrote, in order
         self._thread: threading.Thread | None = None
         self._run_lock = threading.Lock()  # serialises start / restart / stop
         self._trainer_lock = threading.Lock()
@@ -114,62 +118,38 @@ class App(Observer):
         self._ui_thread = threading.Thread(target=self._ui_loop, name="flipviz-ui", daemon=True)
         self._build_gui()
         self.views = ViewportRenderer(
-            self.worker, self.render, lambda: self.status == "running",
-            low_width=max(32, cfg.view_width // 3), full_width=cfg.view_width,
+            self.worker, self.render, lambda: self.status == "running", preview_shown=lambda: self.preview.on,
+            depth_range=self._depth_range, max_width=cfg.view_width, on_unsnap=self.scene.unhide,
+            show_preview=self.preview.set_visible,
         )  # fmt: skip
         self.server.on_client_connect(self._on_connect)
-        self.server.on_client_disconnect(lambda c: self.views.remove_client(c.client_id))
+        self.server.on_client_disconnect(self._on_disconnect)
 
     # ---- GUI --------------------------------------------------------------------------------
     def _build_gui(self) -> None:
         gui = self.server.gui
-        gui.configure_theme(control_width="large", show_share_button=False, brand_color=(240, 130, 20))
+        gui.configure_theme(control_width="large", show_share_button=False, brand_color=palette.CAMERA["mirror"])
         tabs = gui.add_tab_group()
         with tabs.add_tab("Train", viser.Icon.PLAYER_PLAY):
-            self.progress_md = gui.add_markdown("_Starting..._")
-            self.progress_bar = gui.add_progress_bar(0.0, animated=False, color="orange")
-            self.plot = gui.add_uplot(
-                (np.array([0.0, 1.0]), np.array([0.0, 0.0])),
-                (
-                    {"label": "step"},
-                    {"label": "PSNR (train batch, dB)", "stroke": "#f08214", "width": 2},
-                ),
-                title="PSNR", scales={"x": {"time": False}}, aspect=1.6,
-            )  # fmt: skip
-            self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
-            self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
-            with gui.add_folder("Restart", expand_by_default=True):
-                self.method_dd = gui.add_dropdown("Method", METHODS, initial_value=self.cfg.method)
-                self.config_dd = gui.add_dropdown(
-                    "Configuration", tuple(str(i) for i in range(1, 9)), initial_value=str(self.cfg.config)
-                )
-                self.steps_num = gui.add_number("Steps", int(self.cfg.steps), min=1, step=1)
-                self.restart_btn = gui.add_button("Restart training", icon=viser.Icon.REFRESH)
+            self.train = TrainPanel(self.server, self.pause, self.resume, self.restart_with)
             self.your_view = gui.add_folder("Your view")
         with tabs.add_tab("Views", viser.Icon.CAMERA):
             with gui.add_folder("Snap to view"):
-                self.snap = SnapToView(self.server, self.worker, self)
+                self.snap = SnapToView(self.server, self.worker, self, self._snap_client)
             with gui.add_folder("Novel cameras"):
                 self.novel = NovelCameras(self.server, self.worker, self)
         with tabs.add_tab("Mirror", viser.Icon.FLIP_VERTICAL):
             self.mirror = MirrorLesson(self.server, self.worker, self, self.scene, self.restart_with_plane)
         with tabs.add_tab("Show", viser.Icon.EYE):
-            for g, (label, _) in GROUPS.items():
-                cb = gui.add_checkbox(label, self.scene.visible[g])
-                cb.on_update(lambda ev, g=g: self.scene.set_visible(g, ev.target.value))
-        self.pause_btn.on_click(lambda _: self.pause())
-        self.resume_btn.on_click(lambda _: self.resume())
-        self.restart_btn.on_click(lambda _: self.restart(self._restart_config()))
-
-    def restart_with_plane(self, plane: Plane) -> None:
-        """Retrain with `plane` as the mirror plane (with Flip+U unless a Flip method is running)."""
-        method = self.cfg.method if self.cfg.method in ("flip", "flip+u") else "flip+u"
-        self.restart(replace(self.cfg, mirror_plane=plane_to_arg(plane), method=method))
-
-    def _restart_config(self) -> AppConfig:
-        return replace(
-            self.cfg, method=self.method_dd.value, config=int(self.config_dd.value), steps=int(self.steps_num.value)
-        )
+            gui.add_markdown("**Colours**\n\n" + "\n".join(f"- {sq} {what}" for sq, what in palette.LEGEND))
+            with gui.add_folder("3D preview"):
+                self.preview = LivePreview(
+                    self.server, self.worker, self._bake, lambda: self.status == "running", lambda: self.step
+                )
+            with gui.add_folder("Scene"):
+                for g, (label, _) in GROUPS.items():
+                    cb = gui.add_checkbox(label, self.scene.visible[g])
+                    cb.on_update(lambda ev, g=g: self.scene.set_visible(g, ev.target.value))
 
     def _set_initial_camera(self, center: np.ndarray, radius: float) -> None:
         """New tabs start outside the camera sphere, above the camera ring, looking at its centre (z up)."""
@@ -180,6 +160,29 @@ class App(Observer):
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
         self.views.add_client(client, folder=self.your_view)
+        self.preview.set_visible(client.client_id, True)
+
+    def _on_disconnect(self, client: viser.ClientHandle) -> None:
+        self.views.remove_client(client.client_id)
+        self.preview.remove_client(client.client_id)
+
+    def _depth_range(self) -> tuple[float, float]:
+        """Depth colour range: the scene box seen from the fitted sphere's radius."""
+        s = self.setup
+        if s is None:
+            return (2.0, 6.0)
+        half = 0.5 * float(np.linalg.norm(s.bbox[1] - s.bbox[0]))
+        return (round(max(0.0, s.sphere_radius - half), 2), round(s.sphere_radius + half, 2))
+
+    def _snap_client(self, client: viser.ClientHandle, cam: Camera, reference: np.ndarray | None, name: str) -> None:
+        from flipviz.viz.viser_render import Snapped
+
+        self.scene.hide_near(cam.center, 0.35 * float(self.setup.sphere_radius) if self.setup else 1.0)
+        self.views.snap(client.client_id, Snapped(cam, reference, name))
+
+    def _bake(self) -> dict | None:
+        trainer = self.trainer
+        return trainer.point_cloud() if trainer is not None else None
 
     # ---- training control -------------------------------------------------------------------
     def start(self) -> "App":
@@ -202,7 +205,7 @@ class App(Observer):
         try:
             trainer = Trainer(tcfg, scene=scene)
         except Exception as e:  # bad data / plane: show it, keep serving
-            self.status, self.message = "error", f"{type(e).__name__}: {e}"
+            self.status, self.message = "error", f"{type(e).__name__}: {e}".splitlines()[0]
             log.error("could not start training: %s", self.message)
             return
         trainer.add_observer(self)
@@ -217,6 +220,7 @@ class App(Observer):
             if gen != self._gen:  # stopped or restarted while the trainer was being built
                 return
             self.trainer = trainer
+            self.run_dirs.append(trainer.run_dir)
         self.on_setup(trainer.setup_event)
         self.status = "running"
         trainer.run()
@@ -225,13 +229,14 @@ class App(Observer):
         if self.trainer is not None and self.status == "running":
             self.trainer.pause()
             self.status = "paused"
-            self.pause_btn.disabled, self.resume_btn.disabled = True, False
+            self.train.set_controls(self.status)
 
     def resume(self) -> None:
         if self.trainer is not None and self.status == "paused":
             self.trainer.resume()
             self.status = "running"
-            self.pause_btn.disabled, self.resume_btn.disabled = False, True
+            self.train.set_controls(self.status)
+            self.preview.request()
 
     def _stop_run(self) -> None:
         """Stop the trainer thread and wait for it (the trainer saves its checkpoint)."""
@@ -244,22 +249,43 @@ class App(Observer):
             self._thread.join()
         self.trainer = None
 
+    def restart_with(self, choice: RunChoice) -> None:
+        """Restart with the Train tab's choice of scene (or data folder), method, configuration, steps."""
+        data = Path(choice.data).expanduser() if choice.data else None
+        scene = choice.scene if choice.scene is not None else self.cfg.scene
+        self.restart(replace(self.cfg, scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps))
+
+    def restart_with_plane(self, plane: Plane) -> None:
+        """Retrain with `plane` as the mirror plane (with Flip+U unless a Flip method is running)."""
+        method = self.cfg.method if self.cfg.method in ("flip", "flip+u") else "flip+u"
+        self.restart(replace(self.cfg, mirror_plane=plane_to_arg(plane), method=method))
+
     def restart(self, cfg: AppConfig) -> None:
-        """Stop the current run and train `cfg` from scratch (new run folder); resets the scene."""
+        """Stop the current run and train `cfg` from scratch in a new run folder; resets the scene.
+
+        The replaced run keeps its metrics, renders and recording; its checkpoint is deleted unless
+        --keep-restart-checkpoints.
+        """
         with self._run_lock:
             if self._closing.is_set():
                 return
             self.restarts += 1
             self.status = "restarting"
-            self.progress_md.content = "_Stopping the current run..._"
+            self.train.set_controls(self.status)
+            self._update_progress(None)
             self._stop_run()
+            if not self.cfg.keep_restart_checkpoints and self.run_dirs:
+                (self.run_dirs[-1] / CHECKPOINT_NAME).unlink(missing_ok=True)
             self.worker.cancel(lambda k: True)
             self.scene.clear()
             self.mirror.clear()
-            out = None if self.cfg.out is None else Path(self.cfg.out) / f"restart{self.restarts}"
-            cfg = replace(cfg, out=out, resume=None, rrd=None)
-            self.pause_btn.disabled, self.resume_btn.disabled = False, True
-            self._start_run(cfg)
+            self.preview.clear()
+            self.novel.reset()
+            with self._ev_lock:
+                self.setup, self._last_step, self._test_psnr, self.mirror_c2w = None, None, None, None
+                self._hist_step, self._hist_psnr = [], []
+            out = None if self._base_out is None else Path(f"{self._base_out}-restart{self.restarts}")
+            self._start_run(replace(cfg, out=out, resume=None, rrd=None))
 
     def stop(self) -> None:
         """Stop training (joined: checkpoint and recording flushed), the renders and the server."""
@@ -330,10 +356,13 @@ class App(Observer):
                     self.scene.update_mirrors(step_ev.mirror_c2w)
                     last_mirrors = now
                 if now - last_plot > 1.0:
-                    self._update_plot()
+                    with self._ev_lock:
+                        hist = (list(self._hist_step), list(self._hist_psnr))
+                    self.train.set_plot(*hist)
                     last_plot = now
                 if images is not None:
                     self.mirror.on_images(images)
+                self.train.set_controls(self.status)
                 self._update_progress(step_ev)
             except Exception:
                 log.exception("UI update failed")
@@ -344,51 +373,20 @@ class App(Observer):
         self.mirror.clear()
         self.mirror.build(setup)
         self.snap.rebuild()
-        self.method_dd.value, self.config_dd.value = self.cfg.method, str(self.cfg.config)
-        self.steps_num.value = int(self.cfg.steps)
+        self.views.unsnap_all()
+        cfg = self.cfg
+        self.train.show_run(cfg.scene, str(cfg.data) if cfg.data else None, cfg.method, cfg.config, cfg.steps)
         self.views.request_all()
-
-    def _update_plot(self) -> None:
-        with self._ev_lock:
-            x, y = np.array(self._hist_step), np.array(self._hist_psnr)
-        if len(x) < 2:
-            return
-        if len(x) > 400:
-            idx = np.linspace(0, len(x) - 1, 400).astype(int)
-            x, y = x[idx], y[idx]
-        self.plot.data = (x, y)
+        self.preview.request(delay=1.0)
 
     def _update_progress(self, ev: StepEvent | None) -> None:
-        setup = self.setup
-        head = f"**{setup.scene} | {setup.method} | configuration {setup.config}**" if setup else "**flipviz**"
-        parts = [f"status: **{self.status}**"]
-        if ev is not None:
-            s = ev.scalars
-            rate = ev.step / ev.elapsed_s if ev.elapsed_s > 0 else float("nan")
-            eta = (ev.total_steps - ev.step) / rate if rate > 0 and self.status == "running" else None
-            parts += [
-                f"step **{ev.step}** / {ev.total_steps}",
-                f"loss {s.get('loss', float('nan')):.4f}",
-                f"PSNR {s.get('psnr', float('nan')):.2f} dB",
-                f"{rate:.1f} steps/s",
-            ]
-            if eta is not None:
-                parts.append(f"ETA {_fmt_time(eta)}")
-            self.progress_bar.value = 100.0 * ev.step / max(1, ev.total_steps)
-        if self._test_psnr is not None:
-            parts.append(f"test PSNR **{self._test_psnr:.2f} dB**")
         now, busy = time.monotonic(), self.worker.busy_s
         t0, b0 = self._busy_mark
         if now - t0 > 5.0:
             self._render_share, self._busy_mark = (busy - b0) / (now - t0), (now, busy)
-        parts.append(f"browser renders {100 * self._render_share:.0f}% of the time")
-        text = head + "\n\n" + " | ".join(parts)
-        if self.message:
-            text += f"\n\n_{self.message}_"
-        if setup is not None and self.trainer is not None:
-            text += f"\n\nrun folder: `{self.trainer.run_dir}`"
-        if self.progress_md.content != text:
-            self.progress_md.content = text
+        trainer = self.trainer
+        run_dir = str(trainer.run_dir) if trainer is not None and self.setup is not None else None
+        self.train.show_progress(self.setup, self.status, ev, self._test_psnr, self._render_share, self.message, run_dir)
 
 
 def run_app(cfg: AppConfig) -> None:

@@ -1,4 +1,4 @@
-"""Small helpers shared by the viser app: the one camera-convention conversion, images, colormaps.
+"""Small helpers shared by the viser app: the one camera-convention conversion, images, scalar maps.
 
 flipviz cameras are OpenGL (look along -z, +y up; `flipviz.data.cameras`). viser's frustums,
 gizmos and viewer cameras are OpenCV (look along +z, +y down). The two differ by a flip of the
@@ -9,14 +9,15 @@ inverse). `to_viser_pose` / `camera_from_viser` are the only places that convert
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
-import matplotlib
 import numpy as np
 import viser.transforms as vtf
 
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
+from flipviz.viz import palette
 
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
@@ -73,45 +74,49 @@ def upscale(img: np.ndarray, min_side: int = 128) -> np.ndarray:
     return np.ascontiguousarray(img.repeat(k, 0).repeat(k, 1)) if k > 1 else img
 
 
-def colormap(x: np.ndarray, name: str = "turbo", lo: float | None = None, hi: float | None = None) -> np.ndarray:
-    """Scalar map (H, W) -> uint8 RGB via a matplotlib colormap, normalised to [lo, hi]."""
-    x = np.nan_to_num(np.asarray(x, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    lo = float(np.min(x)) if lo is None else lo
-    hi = float(np.max(x)) if hi is None else hi
-    t = np.clip((x - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
-    return to_uint8(matplotlib.colormaps[name](t)[..., :3])
-
-
 OUTPUTS: tuple[str, ...] = ("RGB", "depth", "opacity", "beta^2")
 OUTPUT_KEY = {"RGB": "rgb", "depth": "depth", "opacity": "opacity", "beta^2": "beta2"}
 
 
-def visualize_output(out: dict, which: str) -> np.ndarray:
-    """One render output as a uint8 image: RGB as is, depth/opacity/beta^2 colormapped."""
-    key = OUTPUT_KEY[which]
-    x = out.get(key)
-    if x is None:
+@dataclass(frozen=True)
+class ScalarView:
+    """How a scalar output is shown: its fixed range (or per frame) and the label of its colour bar."""
+
+    depth_range: tuple[float, float] = (2.0, 6.0)  # world units along the view axis
+    per_frame: bool = False  # beta^2 on this frame's 1st..99th percentile instead of BETA2_RANGE
+
+
+def output_range(out: dict, which: str, view: ScalarView) -> tuple[float, float, str] | None:
+    """(lo, hi, label) of the colour scale of `which` (None for RGB)."""
+    if which == "depth":
+        return (*view.depth_range, "depth (world units)")
+    if which == "opacity":
+        return (*palette.OPACITY_RANGE, "opacity")
+    if which == "beta^2":
+        b = out.get("beta2")
+        if view.per_frame and b is not None:
+            lo, hi = np.percentile(b, [1, 99])
+            return (float(round(lo, 4)), float(round(max(hi, lo + 1e-4), 4)), "beta^2 (this frame)")
+        return (*palette.BETA2_RANGE, "beta^2")
+    return None
+
+
+def visualize_output(out: dict, which: str, view: ScalarView = ScalarView()) -> np.ndarray:
+    """One render output as a uint8 image: RGB as is, the scalar maps on the palette's colormap."""
+    x = out.get(OUTPUT_KEY[which])
+    if x is None:  # this model has no beta^2: grey
         shape = next(v for v in out.values() if v is not None).shape[:2]
-        return np.full((*shape, 3), 128, np.uint8)  # grey: this model has no beta^2
-    x = np.asarray(x)
-    if key == "rgb":
+        return np.full((*shape, 3), 128, np.uint8)
+    if which == "RGB":
         return to_uint8(x)
-    x = x.reshape(x.shape[:2])
-    if key == "opacity":
-        return colormap(x, "viridis", 0.0, 1.0)
-    if key == "depth":
-        op = out.get("opacity")
-        fg = x[np.asarray(op).reshape(x.shape) > 0.5] if op is not None else x.ravel()
-        lo, hi = (np.percentile(fg, 2), np.percentile(fg, 98)) if fg.size else (None, None)
-        return colormap(x, "turbo", lo, hi)
-    v = np.log10(np.maximum(x, 1e-8))  # beta^2 spans decades: show log10
-    return colormap(v, "magma", float(np.percentile(v, 1)), float(np.percentile(v, 99)))
+    lo, hi, _ = output_range(out, which, view)  # type: ignore[misc]
+    return palette.colormap(np.asarray(x).reshape(x.shape[:2]), lo, hi)
 
 
-def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """|pred - gt| averaged over RGB, colormapped (inferno, 0..0.5)."""
-    e = np.abs(np.asarray(pred, np.float32)[..., :3] - np.asarray(gt, np.float32)[..., :3]).mean(-1)
-    return colormap(e, "inferno", 0.0, 0.5)
+def error_map(pred: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """|pred - ref| averaged over RGB on the palette's error range, uint8 RGB."""
+    e = np.abs(np.asarray(pred, np.float32)[..., :3] - np.asarray(ref, np.float32)[..., :3]).mean(-1)
+    return palette.colormap(e, *palette.ERROR_RANGE)
 
 
 def resize_nearest(img: np.ndarray, width: int, height: int) -> np.ndarray:

@@ -21,9 +21,12 @@ from flipviz.data.dataset import Plane
 from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
 from flipviz.geometry.sphere import Sphere
 from flipviz.training.events import ImagesEvent, SetupEvent
+from flipviz.data.images import to_uint8
 from flipviz.training.evaluate import image_psnr
+from flipviz.viz import palette
 from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import (
+    error_map,
     plane_from_pose,
     plane_wxyz,
     resize_nearest,
@@ -41,11 +44,12 @@ exactly the flipped image, so the unobserved side gets training views for free; 
 corrects the small pose errors and the learned variance beta^2 down-weights pixels that still disagree.
 
 Where the object is **not** symmetric (a mug's handle, a one-sided lamp), the flipped views
-contradict the real ones. Drag the plane gizmo to see the mirrored cameras move (orange: preview),
-press *Score mirrors* to measure each flipped view against the current model (red frustums:
-inconsistent), then restart training with the new plane."""
+contradict the real ones. Show the plane gizmo and drag it, or type a plane, to see the mirrored
+cameras move (pale orange: preview); press *Score mirrors* to measure each flipped view against the
+current model (🟥 contradicts, 🟩 agrees); set *Mirrored frustums show* to *disagreement* to see
+where; then restart training with the new plane."""
 
-PREVIEW_COLOR = (255, 170, 0)
+FRUSTUM_IMAGES = ("flipped image", "disagreement", "beta^2")
 
 
 class MirrorLesson:
@@ -59,7 +63,18 @@ class MirrorLesson:
         gui = server.gui
         gui.add_markdown(LESSON)
         self.plane_text = gui.add_markdown("_No run yet._")
+        self.show_gizmo = gui.add_checkbox("Show plane gizmo", False, hint="Drag its arrows and rings to move the plane")
         self.show_preview = gui.add_checkbox("Show plane preview", True)
+        with gui.add_folder("Type the plane"):
+            self.azimuth = gui.add_slider("Vertical plane azimuth", -180.0, 180.0, 1.0, 0.0,
+                                          hint="Normal (cos a, sin a, 0), through the sphere centre")  # fmt: skip
+            self.point_in = gui.add_vector3("Plane point", (0.0, 0.0, 0.0), step=0.01)
+            self.normal_in = gui.add_vector3("Plane normal", (1.0, 0.0, 0.0), step=0.01)
+            self.apply_btn = gui.add_button("Apply typed plane", icon=viser.Icon.CHECK)
+        self.frustum_shows = gui.add_dropdown(
+            "Mirrored frustums show", FRUSTUM_IMAGES, initial_value=FRUSTUM_IMAGES[0],
+            hint="disagreement: |flipped image - the model seen from the mirrored camera|",
+        )  # fmt: skip
         self.score_btn = gui.add_button("Score mirrors", icon=viser.Icon.RULER, hint="Render each mirrored view now")
         self.reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         self.restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
@@ -80,6 +95,13 @@ class MirrorLesson:
         self.reset_btn.on_click(lambda _: self.reset_plane())
         self.restart_btn.on_click(lambda _: self.restart())
         self.show_preview.on_update(lambda _: self._set_preview_visible())
+        self.show_gizmo.on_update(lambda _: self._set_gizmo_visible())
+        self.azimuth.on_update(lambda _: self._typed_azimuth())
+        self.apply_btn.on_click(lambda _: self._typed_plane())
+        self.frustum_shows.on_update(lambda _: self._show_frustum_images())
+        self.last_images: ImagesEvent | None = None
+        self.quad: viser.MeshHandle | None = None  # the mirror plane, drawn apart from its gizmo
+        self.trains_mirrors = True
 
     # ---- per run ----------------------------------------------------------------------------
     def build(self, setup: SetupEvent) -> None:
@@ -100,14 +122,16 @@ class MirrorLesson:
             r = float(setup.sphere_radius)
             scene = self.server.scene
             self.gizmo = scene.add_transform_controls(
-                "/plane", scale=0.35 * r, wxyz=plane_wxyz(plane), position=plane.point, opacity=0.8
-            )
+                "/plane", scale=0.6 * r, line_width=6.0, wxyz=plane_wxyz(plane), position=plane.point, opacity=0.9,
+                visible=bool(self.show_gizmo.value),
+            )  # fmt: skip
             v, f = plane_quad(0.55 * r)
-            scene.add_mesh_simple(
-                "/plane/quad", v, f, color=(255, 170, 0), opacity=0.18, side="double", cast_shadow=False,
-                receive_shadow=False,
+            self.quad = scene.add_mesh_simple(
+                "/mirror_plane", v, f, color=palette.MIRROR_PLANE, opacity=0.18, side="double", cast_shadow=False,
+                receive_shadow=False, wxyz=plane_wxyz(plane), position=plane.point,
             )  # fmt: skip
             self.preview, self.preview_frame = [], None
+            self.trains_mirrors = setup.plane is not None
             self.moved = False
             self.gizmo.on_update(self._on_gizmo)
             self._apply_plane(plane)
@@ -116,9 +140,9 @@ class MirrorLesson:
     def clear(self) -> None:
         with self._lock:
             if self.gizmo is not None:
-                self.server.scene.remove_by_name("/plane")
-                self.server.scene.remove_by_name("/preview")
-            self.gizmo, self.preview, self.preview_cams, self.preview_frame = None, [], [], None
+                for name in ("/plane", "/mirror_plane", "/preview"):
+                    self.server.scene.remove_by_name(name)
+            self.gizmo, self.preview, self.preview_cams, self.preview_frame, self.quad = None, [], [], None, None
 
     # ---- the plane --------------------------------------------------------------------------
     def _on_gizmo(self, ev: viser.TransformControlsEvent) -> None:
@@ -126,6 +150,23 @@ class MirrorLesson:
             return
         self.moved = True
         self._apply_plane(plane_from_pose(ev.target.wxyz, ev.target.position))
+
+    def _set_gizmo_visible(self) -> None:
+        if self.gizmo is not None:
+            self.gizmo.visible = bool(self.show_gizmo.value)
+
+    def _typed_azimuth(self) -> None:
+        if self.sphere is not None:
+            a = np.radians(float(self.azimuth.value))
+            self.set_plane(Plane(self.sphere.center, np.array([np.cos(a), np.sin(a), 0.0])))
+
+    def _typed_plane(self) -> None:
+        try:
+            plane = Plane(np.array(self.point_in.value, float), np.array(self.normal_in.value, float))
+        except ValueError as e:  # a zero normal
+            self.plane_text.content = f"_Cannot use that plane: {e}._"
+            return
+        self.set_plane(plane)
 
     def set_plane(self, plane: Plane) -> None:
         """Move the gizmo (as if dragged) to `plane`."""
@@ -152,6 +193,8 @@ class MirrorLesson:
             return
         self.plane, self.preview_cams = plane, cams
         scene = self.server.scene
+        if self.quad is not None:
+            self.quad.wxyz, self.quad.position = plane_wxyz(plane), plane.point
         r = float(self.sphere.radius)
         with self.server.atomic():
             if not self.preview:
@@ -161,7 +204,7 @@ class MirrorLesson:
                     self.preview.append(
                         scene.add_camera_frustum(
                             f"/preview/{k}", fov=cam.fov_y, aspect=cam.width / cam.height, scale=0.07 * r,
-                            color=PREVIEW_COLOR, image=thumbnail(img) if img is not None else None, wxyz=wxyz,
+                            color=palette.CAMERA["mirror_init"], image=thumbnail(img) if img is not None else None, wxyz=wxyz,
                             position=pos, thickness=0.01 * r / 4.0, cast_shadow=False, receive_shadow=False,
                         )  # fmt: skip
                     )
@@ -169,16 +212,25 @@ class MirrorLesson:
                 for h, cam in zip(self.preview, cams):
                     h.wxyz, h.position = to_viser_pose(cam.c2w)
             links = np.stack([np.stack([a.center, b.center]) for a, b in zip(self.inputs, cams)]).astype(np.float32)
-            scene.add_line_segments("/preview/links", links, PREVIEW_COLOR, thickness=1.5, thickness_units="screen")
+            scene.add_line_segments(
+                "/preview/links", links, palette.CAMERA["mirror_init"], thickness=1.5, thickness_units="screen"
+            )
+            for h in self.preview:
+                h.color = palette.CAMERA["mirror_init"]  # not scored for this plane yet
         self._set_preview_visible()
         p, n = np.round(plane.point, 2) + 0.0, np.round(plane.normal, 2) + 0.0  # + 0.0: no "-0.00"
         same = self.train_plane is not None and np.allclose(plane.point, self.train_plane.point) and np.allclose(
             plane.normal, self.train_plane.normal
         )
-        self.plane_text.content = (
-            f"Plane: point ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f})"
-            + (" - the training plane." if same else " - **moved**: restart to train with it.")
-        )
+        where = f"Plane: point ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f})"
+        if not self.trains_mirrors:
+            self.plane_text.content = where + (
+                " - this method trains on **no** mirrored view; this is the plane a Flip run would use."
+            )
+        else:
+            self.plane_text.content = where + (
+                " - the training plane." if same else " - **moved**: restart to train with it."
+            )
 
     def _preview_wanted(self) -> bool:
         return bool(self.show_preview.value and self.moved)
@@ -198,7 +250,22 @@ class MirrorLesson:
             s = [image_psnr(v.rgb, v.gt) if v.gt is not None else float("nan") for v in event.mirror_views]
             self.scores[f"BA poses, step {event.step}"] = s
             self.scene.set_mirror_colors(s)
+            self.last_images = event
+            self._show_frustum_images()
             self._show_table([v.name for v in event.mirror_views])
+
+    def _show_frustum_images(self) -> None:
+        """The mirrored frustums' images: the flipped image, its disagreement with the model, or beta^2."""
+        ev, which = self.last_images, self.frustum_shows.value
+        if ev is None or not ev.mirror_views:
+            return
+        if which == "disagreement":
+            imgs = [error_map(v.rgb, v.gt) for v in ev.mirror_views if v.gt is not None]
+        elif which == "beta^2" and ev.mirror_views[0].beta2 is not None:
+            imgs = [palette.colormap(v.beta2, *palette.BETA2_RANGE) for v in ev.mirror_views]
+        else:
+            imgs = [to_uint8(v.gt) for v in ev.mirror_views if v.gt is not None]
+        self.scene.set_mirror_images(imgs)
 
     def _score_now(self) -> None:
         """Render from the preview poses (plane moved) or the current BA poses, and score them."""
@@ -222,6 +289,9 @@ class MirrorLesson:
         self.scores[label] = scores
         if not self.moved:
             self.scene.set_mirror_colors(scores)
+        else:  # the preview frustums take the colours of their scores
+            for h, sc in zip(self.preview, scores):
+                h.color = palette.score_color(sc)
         self._show_table([f"{c.name}_flip" for c in self.inputs])
 
     def _show_table(self, names: list[str]) -> None:
@@ -233,7 +303,9 @@ class MirrorLesson:
             rows.append(f"| {n} | " + " | ".join(cells) + " |")
         means = [np.nanmean(self.scores[c]) if len(self.scores[c]) else float("nan") for c in cols]
         rows.append("| **mean** | " + " | ".join(f"**{m:.1f} dB**" for m in means) + " |")
+        lo, hi = palette.SCORE_RANGE
         self.table.content = (
             "Consistency = PSNR of the model seen from each mirrored camera vs its flipped image "
-            "(low = the symmetry assumption fails there).\n\n" + head + "\n".join(rows)
+            f"(low = the symmetry assumption fails there). Frustum colours: 🟥 {lo:g} dB or less (contradicts), "
+            f"🟨 {0.5 * (lo + hi):g} dB, 🟩 {hi:g} dB or more (agrees).\n\n" + head + "\n".join(rows)
         )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from typing import Callable
 
 import numpy as np
 import viser
@@ -10,6 +11,7 @@ import viser
 from flipviz.data.cameras import Camera, look_at
 from flipviz.data.images import to_uint8
 from flipviz.training.evaluate import image_psnr
+from flipviz.viz import palette
 from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, error_map, to_viser_pose, upscale, visualize_output
 from flipviz.viz.viser_render import RenderWorker
@@ -23,6 +25,7 @@ class NovelCameras:
     def __init__(self, server: viser.ViserServer, worker: RenderWorker, run: RunView) -> None:
         self.server, self.worker, self.run = server, worker, run
         self.gizmos: dict[str, viser.TransformControlsHandle] = {}
+        self._count = 0
         self.frustums: dict[str, viser.CameraFrustumHandle] = {}
         self._lock = threading.Lock()
         gui = server.gui
@@ -30,17 +33,20 @@ class NovelCameras:
         self.select = gui.add_dropdown("Novel camera", ("(none)",))
         self.output = gui.add_dropdown("Novel output", OUTPUTS, initial_value="RGB")
         self.render_btn = gui.add_button("Render novel view", icon=viser.Icon.PHOTO)
+        self.delete_btn = gui.add_button("Delete camera", icon=viser.Icon.TRASH, hint="Remove the selected camera")
         self.image = gui.add_image(BLANK, label="Novel render", format="jpeg")
         self.status = gui.add_markdown("_Add a camera, drag its gizmo, press Render._")
         self.add_btn.on_click(lambda ev: self.add(ev.client))
         self.render_btn.on_click(lambda _: self.request(self.select.value, priority=0))
         self.output.on_update(lambda _: self.request(self.select.value, priority=0))
+        self.delete_btn.on_click(lambda _: self.delete(self.select.value))
 
     def add(self, client: viser.ClientHandle | None = None) -> str:
         """Add a novel camera at `client`'s current view (or looking at the sphere centre)."""
         setup = self.run.setup
         with self._lock:
-            name = f"cam{len(self.gizmos)}"
+            self._count += 1
+            name = f"cam{self._count}"
             if client is not None:
                 try:  # your view, a third of the way to what you look at (so that you see the gizmo)
                     wxyz, pos = client.camera.wxyz.copy(), client.camera.position.copy()
@@ -56,7 +62,7 @@ class NovelCameras:
             g = self.server.scene.add_transform_controls(f"/novel/{name}", scale=scale, wxyz=wxyz, position=pos)
             fov, aspect = self._fov_aspect()
             f = self.server.scene.add_camera_frustum(
-                f"/novel/{name}/frustum", fov=fov, aspect=aspect, scale=0.6 * scale, color=(220, 30, 160),
+                f"/novel/{name}/frustum", fov=fov, aspect=aspect, scale=0.6 * scale, color=palette.CAMERA["novel"],
                 thickness=0.02 * scale, cast_shadow=False, receive_shadow=False,
             )  # fmt: skip
             self.gizmos[name], self.frustums[name] = g, f
@@ -69,6 +75,26 @@ class NovelCameras:
                 self.request(name, priority=1)
 
         return name
+
+    def delete(self, name: str) -> None:
+        """Remove a novel camera (its gizmo and frustum)."""
+        with self._lock:
+            if name not in self.gizmos:
+                return
+            self.worker.cancel(lambda k: k == ("novel", name))
+            self.server.scene.remove_by_name(f"/novel/{name}")
+            del self.gizmos[name], self.frustums[name]
+            self.select.options = tuple(self.gizmos) or ("(none)",)
+            self.select.value = self.select.options[-1]
+        self.image.image = BLANK
+        self.status.content = f"_Deleted `{name}`._"
+
+    def reset(self) -> None:
+        """A new run: the cameras stay where they are, their renders belong to the old run."""
+        self.image.image = BLANK
+        for f in self.frustums.values():
+            f.image = None
+        self.status.content = "_New run: press Render for its view._"
 
     def _input_camera(self) -> Camera | None:
         setup = self.run.setup
@@ -104,10 +130,17 @@ class NovelCameras:
 
 
 class SnapToView:
-    """Jump a client's camera to an input / mirrored / test view; show GT, render and error."""
+    """Jump a client's camera to an input / mirrored / test view; show GT, render, error and beta^2.
 
-    def __init__(self, server: viser.ViserServer, worker: RenderWorker, run: RunView) -> None:
-        self.worker, self.run = worker, run
+    The client's own view then shows the view in its frame (`on_snap`: ground truth and render
+    blended, the error or beta^2), with the frustums near it hidden.
+    """
+
+    def __init__(
+        self, server: viser.ViserServer, worker: RenderWorker, run: RunView,
+        on_snap: Callable[[viser.ClientHandle, Camera, np.ndarray | None, str], None],
+    ) -> None:  # fmt: skip
+        self.worker, self.run, self.on_snap = worker, run, on_snap
         gui = server.gui
         self.select = gui.add_dropdown("View", ("(none)",))
         self.snap_btn = gui.add_button("Snap to view", icon=viser.Icon.FOCUS_2, hint="Moves your camera there")
@@ -115,6 +148,7 @@ class SnapToView:
         self.gt = gui.add_image(BLANK, label="Ground truth (flipped for mirrors)", format="jpeg")
         self.pred = gui.add_image(BLANK, label="Render", format="jpeg")
         self.err = gui.add_image(BLANK, label="|error|", format="jpeg")
+        self.beta2 = gui.add_image(BLANK, label="beta^2", format="jpeg")
         self.views: dict[str, tuple[str, int, Camera, np.ndarray | None]] = {}
         self.snap_btn.on_click(lambda ev: self.snap(self.select.value, ev.client))
 
@@ -149,6 +183,7 @@ class SnapToView:
         if client is not None:
             setup = self.run.setup
             move_client_camera(client, cam, setup.sphere_center if setup is not None else None)
+            self.on_snap(client, cam, self.views[key][3], key)
         self.worker.submit("snap", lambda: self._render(key), priority=0)
 
     def _render(self, key: str) -> None:
@@ -160,10 +195,12 @@ class SnapToView:
         if out is None:
             return
         gt = v[3]
-        self.pred.image = upscale(to_uint8(out["rgb"]), 160)
+        self.pred.image = upscale(to_uint8(out["rgb"]), 320)
+        b2 = out.get("beta2")
+        self.beta2.image = upscale(palette.colormap(b2, *palette.BETA2_RANGE), 320) if b2 is not None else BLANK
         if gt is not None:
-            self.gt.image = upscale(to_uint8(gt), 160)
-            self.err.image = upscale(error_map(out["rgb"], gt), 160)
+            self.gt.image = upscale(to_uint8(gt), 320)
+            self.err.image = upscale(error_map(out["rgb"], gt), 320)
             self.text.content = f"**{key}** at step {self.run.step}: PSNR **{image_psnr(out['rgb'], gt):.2f} dB**"
         else:
             self.text.content = f"**{key}** at step {self.run.step} (no ground truth)"

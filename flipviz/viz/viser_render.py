@@ -7,9 +7,13 @@ it idles t (1 - duty) / duty seconds, so renders hold the lock at most a `duty` 
 wall time. Jobs are keyed (a newer job replaces a pending one with the same key), user requests
 (priority 0) go before viewport refreshes (priority 1).
 
-`ViewportRenderer` renders each client's browser camera as its background: a low resolution
-while the camera moves, the full resolution once it has been still for `settle_s`, and a
-refresh every `refresh_s` while training runs.
+`ViewportRenderer` renders each client's browser camera as its background, at the canvas's
+aspect ratio: nothing (the live 3D preview shows) or a coarse image while the camera moves, then,
+once it has been still for `settle_s`, progressively finer passes up to the client's "max
+resolution"; a camera move cancels the passes still to come. While training runs, the still view
+is refreshed every `refresh_s`. The background carries its depth, so frustums behind the object
+are hidden by it. A snapped view (`snap`) shows the view's ground truth, the render, their error
+or beta^2 in the view's own frame, blended as the client chooses.
 """
 
 from __future__ import annotations
@@ -21,9 +25,21 @@ import traceback
 from dataclasses import dataclass, field
 from typing import Callable, Hashable
 
+import numpy as np
 import viser
 
-from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, visualize_output
+from flipviz.data.cameras import Camera, pixel_directions
+from flipviz.data.images import to_uint8
+from flipviz.viz import palette
+from flipviz.viz.viser_common import (
+    OUTPUTS,
+    ScalarView,
+    camera_from_viser,
+    error_map,
+    output_range,
+    resize_nearest,
+    visualize_output,
+)
 
 
 @dataclass
@@ -48,13 +64,16 @@ class RenderWorker:
         self._thread = threading.Thread(target=self._loop, name="flipviz-render", daemon=True)
         self._thread.start()
 
-    def submit(self, key: Hashable, fn: Callable[[], None], priority: int = 1, delay: float = 0.0) -> None:
-        """Queue `fn` under `key`; a pending job with that key is replaced (keeping the earlier start)."""
+    def submit(
+        self, key: Hashable, fn: Callable[[], None], priority: int = 1, delay: float = 0.0, debounce: bool = False
+    ) -> None:
+        """Queue `fn` under `key`; a pending job with that key is replaced. It keeps the earlier start,
+        unless `debounce`: then the job waits `delay` from now (e.g. until a moving camera is still)."""
         with self._cv:
             self._seq += 1
             t = time.monotonic() + max(0.0, delay)
             old = self._jobs.get(key)
-            if old is not None:
+            if old is not None and not debounce:
                 t = min(t, old.not_before)
                 priority = min(priority, old.priority)
             self._jobs[key] = _Job(priority, t, self._seq, fn)
@@ -106,6 +125,19 @@ class RenderWorker:
         self._thread.join(timeout=10.0)
 
 
+MIN_ASPECT, MAX_ASPECT = 0.25, 4.0  # a canvas outside these is rendered at the nearest bound
+FAR_DEPTH = 100.0  # depth given to background pixels, behind every scene element
+
+
+@dataclass
+class Snapped:
+    """A client snapped to a view: its camera, and its reference image (ground truth, or flipped)."""
+
+    camera: Camera
+    reference: np.ndarray | None
+    name: str
+
+
 @dataclass
 class ClientView:
     """Per-client state of the background ('your view') rendering."""
@@ -113,60 +145,84 @@ class ClientView:
     client: viser.ClientHandle
     enabled: bool = True
     output: str = "RGB"
+    max_width: int = 1024
+    per_frame: bool = False
+    snap_layer: str = "blend"
+    blend: float = 1.0  # 0: the reference image, 1: the render
+    snapped: Snapped | None = None
+    version: int = 0  # bumped by every camera move: passes of an older version are dropped
     last_move: float = 0.0
     renders: int = 0
-    gui: list = field(default_factory=list)
+    last_width: int = 0  # width of the last background sent
+    gui: dict = field(default_factory=dict)
+
+
+SNAP_LAYERS = ("blend", "|error|", "beta^2")
 
 
 class ViewportRenderer:
-    """Renders each client's browser camera as its background image (adaptive resolution)."""
+    """Renders each client's browser camera as its background image (progressive, canvas-sized)."""
 
     def __init__(
         self,
         worker: RenderWorker,
         render: Callable[..., dict | None],
         is_training: Callable[[], bool],
-        low_width: int = 64,
-        full_width: int = 192,
-        settle_s: float = 0.35,
+        preview_shown: Callable[[], bool] = lambda: False,
+        depth_range: Callable[[], tuple[float, float]] = lambda: (2.0, 6.0),
+        max_width: int = 1024,
+        settle_s: float = 0.25,
         refresh_s: float = 5.0,
+        on_unsnap: Callable[[], None] = lambda: None,
+        show_preview: Callable[[int, bool], None] = lambda client_id, visible: None,
     ) -> None:
         self.worker = worker
         self.render = render  # (camera, outputs) -> dict or None when no model is ready
-        self.is_training = is_training
-        self.low_width, self.full_width = int(low_width), int(full_width)
+        self.is_training, self.preview_shown, self.depth_range = is_training, preview_shown, depth_range
+        self.max_width = int(max_width)
         self.settle_s, self.refresh_s = float(settle_s), float(refresh_s)
+        self.on_unsnap, self.show_preview = on_unsnap, show_preview
         self.clients: dict[int, ClientView] = {}
         self._lock = threading.Lock()
         self._gui_lock = threading.Lock()
 
+    # ---- clients ----------------------------------------------------------------------------
     def add_client(self, client: viser.ClientHandle, folder=None) -> ClientView:
-        view = ClientView(client)
-        with self._lock:
-            self.clients[client.client_id] = view
+        view = ClientView(client, max_width=self.max_width)
         ctx = folder if folder is not None else contextlib.nullcontext()
         with self._gui_lock, ctx:  # a container is entered by one thread at a time
-            cb = client.gui.add_checkbox("Render my view", True, hint="Background: the model seen from your camera")
-            dd = client.gui.add_dropdown("My view shows", OUTPUTS, initial_value="RGB")
-        view.gui = [cb, dd]
+            g = client.gui
+            view.gui = {
+                "enabled": g.add_checkbox("Render my view", True, hint="Background: the model seen from your camera"),
+                "output": g.add_dropdown("My view shows", OUTPUTS, initial_value="RGB"),
+                "max_width": g.add_slider("Max resolution", 128, 1920, 64, view.max_width,
+                                          hint="Width in pixels of the finest pass of your view"),
+                "per_frame": g.add_checkbox("beta^2 per frame", False, hint="Colour beta^2 on this frame's range"),
+                "colorbar": g.add_image(np.full((46, 320, 3), 255, np.uint8), label="Colour scale", format="png"),
+                "snap_layer": g.add_dropdown("Snapped view shows", SNAP_LAYERS, initial_value="blend"),
+                "blend": g.add_slider("Ground truth <-> render", 0.0, 1.0, 0.05, 1.0),
+            }  # fmt: skip
+        view.gui["colorbar"].visible = False
+        with self._lock:  # rendered from now on (its GUI exists)
+            self.clients[client.client_id] = view
 
-        @cb.on_update
-        def _(_) -> None:
-            view.enabled = cb.value
-            if view.enabled:
+        def setter(attr: str, cast=lambda v: v):
+            def on_update(_) -> None:
+                setattr(view, attr, cast(view.gui[attr].value))
+                if attr == "enabled" and not view.enabled:
+                    client.scene.set_background_image(None)
+                    self.show_preview(client.client_id, True)
                 self.request(client.client_id)
-            else:
-                client.scene.set_background_image(None)
 
-        @dd.on_update
-        def _(_) -> None:
-            view.output = dd.value
-            self.request(client.client_id)
+            return on_update
+
+        for attr, cast in (("enabled", bool), ("output", str), ("max_width", int), ("per_frame", bool),
+                           ("snap_layer", str), ("blend", float)):  # fmt: skip
+            view.gui[attr].on_update(setter(attr, cast))
 
         @client.camera.on_update
         async def _(_) -> None:  # async: runs on viser's event loop, no thread hop per camera message
-            view.last_move = time.monotonic()
-            self.request(client.client_id)
+            self.moved(client.client_id)
 
         # The first camera message arrived before this (it is what makes a client 'connected'),
         # possibly before the callback above existed: render the initial view now.
@@ -178,33 +234,131 @@ class ViewportRenderer:
             self.clients.pop(client_id, None)
         self.worker.cancel(lambda k: k == ("view", client_id))
 
-    def request(self, client_id: int, delay: float = 0.0) -> None:
-        self.worker.submit(("view", client_id), lambda: self._render(client_id), priority=1, delay=delay)
+    # ---- scheduling -------------------------------------------------------------------------
+    def moved(self, client_id: int) -> None:
+        """The camera moved: drop the passes under way, show the 3D preview, render once still."""
+        view = self.clients.get(client_id)
+        if view is None:
+            return
+        now = time.monotonic()
+        moving_already = now - view.last_move < self.settle_s
+        view.last_move, view.version = now, view.version + 1
+        if not moving_already and view.enabled and self.preview_shown():
+            view.client.scene.set_background_image(None)  # the browser's own 3D preview, at full frame rate
+            self.show_preview(client_id, True)
+        self.request(client_id, delay=self.settle_s, debounce=True)
+
+    def request(self, client_id: int, delay: float = 0.0, debounce: bool = False) -> None:
+        view = self.clients.get(client_id)
+        if view is None:
+            return
+        version = view.version
+        self.worker.submit(
+            ("view", client_id), lambda: self._render(client_id, version, 0), priority=1, delay=delay, debounce=debounce
+        )
 
     def request_all(self) -> None:
         for cid in list(self.clients):
             self.request(cid)
 
-    def _render(self, client_id: int) -> None:
+    def unsnap_all(self) -> None:
+        """A new run: no client stays snapped to a view of the old one."""
+        for view in list(self.clients.values()):
+            view.snapped = None
+            view.version += 1
+
+    def snap(self, client_id: int, snapped: Snapped) -> None:
         view = self.clients.get(client_id)
-        if view is None or not view.enabled:
-            return
+        if view is not None:
+            view.snapped = snapped
+            view.version += 1
+            self.request(client_id)
+
+    # ---- rendering --------------------------------------------------------------------------
+    def passes(self, view: ClientView, canvas_w: int) -> list[int]:
+        """Widths of the progressive passes: a quarter, then the target (canvas width up to max)."""
+        target = max(64, min(int(canvas_w), int(view.max_width)))
+        return [target // 4, target] if target >= 256 else [target]
+
+    def _camera(self, view: ClientView, pass_idx: int) -> tuple[Camera, int] | None:
         cam = view.client.camera
         try:
             wxyz, pos, fov = cam.wxyz.copy(), cam.position.copy(), float(cam.fov)
-            aspect = max(cam.image_width, 1) / max(cam.image_height, 1)
+            cw, ch = max(int(cam.image_width), 1), max(int(cam.image_height), 1)
         except AssertionError:  # no camera message yet
+            return None
+        aspect = min(max(cw / ch, MIN_ASPECT), MAX_ASPECT)
+        widths = self.passes(view, cw)
+        width = widths[min(pass_idx, len(widths) - 1)]
+        return camera_from_viser(wxyz, pos, fov, width, max(8, round(width / aspect))), len(widths)
+
+    def _at(self, view: ClientView, cam: Camera) -> bool:
+        """The client's camera is at `cam`'s pose (it has not moved away from a snapped view)."""
+        try:
+            c2w = camera_from_viser(view.client.camera.wxyz, view.client.camera.position, 1.0, 8, 8).c2w
+        except AssertionError:
+            return False
+        return bool(np.allclose(c2w[:3, 3], cam.c2w[:3, 3], atol=1e-3) and np.allclose(c2w[:3, :3], cam.c2w[:3, :3], atol=1e-3))
+
+    def _render(self, client_id: int, version: int, pass_idx: int) -> None:
+        view = self.clients.get(client_id)
+        if view is None or not view.enabled or view.version != version:
+            return  # gone, switched off, or the camera moved since: a newer request is queued
+        if time.monotonic() - view.last_move < self.settle_s:
+            return self.request(client_id, delay=self.settle_s, debounce=True)
+        if view.snapped is not None and not self._at(view, view.snapped.camera):
+            view.snapped = None  # the camera was moved away (checked once still: a snap may animate)
+            self.on_unsnap()
+        got = self._camera(view, pass_idx)
+        if got is None:
             return
-        moving = time.monotonic() - view.last_move < self.settle_s
-        width = self.low_width if moving else self.full_width
-        height = max(8, round(width / aspect))
-        cam = camera_from_viser(wxyz, pos, fov, width, height)
+        cam, n_passes = got
         out = self.render(cam, outputs=("rgb", "depth", "opacity", "beta2"))
-        if out is None or client_id not in self.clients:
+        if out is None or view.version != version or client_id not in self.clients:
             return
-        view.client.scene.set_background_image(visualize_output(out, view.output), format="jpeg", jpeg_quality=85)
-        view.renders += 1
-        if moving:  # come back for the full resolution once the camera has settled
-            self.request(client_id, delay=self.settle_s)
+        image, bar = self._compose(view, cam, out)
+        view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=self._z_depth(cam, out))
+        view.renders, view.last_width = view.renders + 1, cam.width
+        view.gui["colorbar"].visible = bar is not None
+        if bar is not None:
+            view.gui["colorbar"].image = palette.colorbar(*bar)
+        if pass_idx + 1 == n_passes:
+            self.show_preview(client_id, False)  # the exact view replaces the preview
+        if pass_idx + 1 < n_passes:  # the next, finer pass
+            self.worker.submit(("view", client_id), lambda: self._render(client_id, version, pass_idx + 1), priority=1)
         elif self.is_training():  # keep the still view up to date with training
-            self.request(client_id, delay=self.refresh_s)
+            self.worker.submit(
+                ("view", client_id), lambda: self._render(client_id, version, pass_idx), priority=2, delay=self.refresh_s
+            )
+
+    def _compose(self, view: ClientView, cam: Camera, out: dict) -> tuple[np.ndarray, tuple | None]:
+        """The background image and its colour scale (lo, hi, label), or None for RGB."""
+        scalars = ScalarView(depth_range=self.depth_range(), per_frame=view.per_frame)
+        snapped = view.snapped
+        if snapped is None or snapped.reference is None:
+            rng = output_range(out, view.output, scalars)
+            return visualize_output(out, view.output, scalars), rng
+        # A snapped view: the reference image sits in the centre of the canvas, at the view's field of view.
+        rgb = to_uint8(out["rgb"])
+        h = cam.height
+        w = max(1, min(cam.width, round(h * snapped.reference.shape[1] / snapped.reference.shape[0])))
+        x0 = (cam.width - w) // 2
+        ref = resize_nearest(np.asarray(snapped.reference, np.float32), w, h)
+        mine = out["rgb"][:, x0 : x0 + w]
+        if view.snap_layer == "|error|":
+            rgb[:, x0 : x0 + w] = error_map(mine, ref)
+            return rgb, (*palette.ERROR_RANGE, "|render - reference|")
+        if view.snap_layer == "beta^2" and out.get("beta2") is not None:
+            rgb[:, x0 : x0 + w] = palette.colormap(out["beta2"][:, x0 : x0 + w], *palette.BETA2_RANGE)
+            return rgb, (*palette.BETA2_RANGE, "beta^2")
+        a = float(view.blend)
+        rgb[:, x0 : x0 + w] = to_uint8((1.0 - a) * ref + a * np.clip(mine, 0, 1))
+        return rgb, None
+
+    @staticmethod
+    def _z_depth(cam: Camera, out: dict) -> np.ndarray:
+        """The renderer's ray distance -> depth along the view axis (viser's compositing); background far."""
+        d = pixel_directions(cam.width, cam.height, cam.focal)  # z = -1
+        z = out["depth"].reshape(-1) / np.linalg.norm(d, axis=-1)
+        z = np.where(out["opacity"].reshape(-1) > 0.5, z, FAR_DEPTH)
+        return z.reshape(cam.height, cam.width).astype(np.float32)

@@ -13,18 +13,19 @@ import viser
 
 from flipviz.data.dataset import Plane
 from flipviz.training.events import CameraInfo, SetupEvent
+from flipviz.viz import palette
 from flipviz.viz.viser_common import plane_wxyz, thumbnail, to_viser_pose
 
-# group key -> (label in the GUI, frustum colour)
+# group key -> (label in the GUI, colour)
 GROUPS: dict[str, tuple[str, tuple[int, int, int]]] = {
-    "inputs": ("input cameras", (40, 110, 230)),
-    "tests": ("test cameras (unobserved)", (110, 110, 110)),
-    "mirrors": ("mirrored cameras (BA)", (240, 130, 20)),
-    "mirror_true": ("exact reflections", (30, 170, 60)),
-    "upper": ("upper-bound cameras", (150, 60, 200)),
-    "trajectories": ("BA trajectories", (240, 130, 20)),
-    "sphere": ("fitted sphere", (120, 160, 255)),
-    "true_plane": ("true symmetry plane", (30, 170, 60)),
+    "inputs": ("input cameras", palette.CAMERA["input"]),
+    "tests": ("test cameras (unobserved)", palette.CAMERA["test"]),
+    "mirrors": ("mirrored cameras (BA)", palette.CAMERA["mirror"]),
+    "mirror_true": ("exact reflections", palette.CAMERA["mirror_true"]),
+    "upper": ("upper-bound cameras", palette.CAMERA["upper"]),
+    "trajectories": ("BA trajectories", palette.TRAJECTORY),
+    "sphere": ("fitted sphere", palette.SPHERE),
+    "true_plane": ("true symmetry plane", palette.TRUE_PLANE),
 }
 KIND_GROUP = {
     "input": "inputs", "test": "tests", "mirror_init": "mirrors", "mirror_true": "mirror_true", "upper": "upper"
@@ -59,6 +60,8 @@ class RunScene:
         self.history: list[list[np.ndarray]] = []
         self.scale = 0.3
         self.groups: dict[str, viser.FrameHandle] = {}
+        self.frustums: list[tuple[viser.CameraFrustumHandle, np.ndarray]] = []  # (handle, its camera centre)
+        self.hidden: list[viser.CameraFrustumHandle] = []  # hidden around a snapped view
         self._lock = threading.Lock()
 
     # ---- building -------------------------------------------------------------------------
@@ -73,7 +76,7 @@ class RunScene:
             self.groups = {g: scene.add_frame(f"/run/{g}", show_axes=False, visible=self.visible[g]) for g in GROUPS}
             scene.add_icosphere(
                 "/run/sphere/mesh", radius=r, color=GROUPS["sphere"][1], subdivisions=3, wireframe=True,
-                opacity=0.25, position=setup.sphere_center, cast_shadow=False, receive_shadow=False,
+                opacity=0.12, position=setup.sphere_center, cast_shadow=False, receive_shadow=False,
             )  # fmt: skip
             scene.add_point_cloud(
                 "/run/sphere/center", np.asarray(setup.sphere_center, np.float32)[None], (60, 90, 255),
@@ -84,11 +87,12 @@ class RunScene:
             counts: dict[str, int] = {}
             for info in setup.cameras:
                 g = KIND_GROUP.get(info.kind)
-                if g is None:
+                if g is None or (g == "mirrors" and setup.plane is None):  # a method without mirrors
                     continue
                 k = counts.get(g, 0)
                 counts[g] = k + 1
                 h = self._add_frustum(f"/run/{g}/{k}", info, GROUPS[g][1], with_image=g != "tests")
+                self.frustums.append((h, info.camera.center))
                 if g == "mirrors":
                     self.mirror_handles.append(h)
                     self.mirror_names.append(info.camera.name)
@@ -108,6 +112,7 @@ class RunScene:
             self.server.scene.remove_by_name("/run")
         self.groups = {}
         self.mirror_handles, self.mirror_names, self.history = [], [], []
+        self.frustums, self.hidden = [], []
         self.setup = None
 
     def clear(self) -> None:
@@ -121,6 +126,28 @@ class RunScene:
             if group in self.groups:
                 self.groups[group].visible = bool(visible)
 
+    def hide_near(self, center: np.ndarray, radius: float) -> None:
+        """Hide the frustums within `radius` of a snapped camera, and the BA trajectories, so the view is seen."""
+        with self._lock:
+            self._unhide()
+            for h, c in self.frustums:
+                if np.linalg.norm(c - center) < radius and h.visible:
+                    h.visible = False
+                    self.hidden.append(h)
+            if "trajectories" in self.groups:
+                self.groups["trajectories"].visible = False
+
+    def unhide(self) -> None:
+        with self._lock:
+            self._unhide()
+
+    def _unhide(self) -> None:
+        for h in self.hidden:
+            h.visible = True
+        self.hidden = []
+        if "trajectories" in self.groups:
+            self.groups["trajectories"].visible = self.visible["trajectories"]
+
     def update_mirrors(self, c2w: np.ndarray) -> None:
         """Move the mirrored frustums to the refined poses (M, 4, 4) and extend their trajectories."""
         with self._lock:
@@ -130,6 +157,7 @@ class RunScene:
                 for h, T, hist in zip(self.mirror_handles, c2w, self.history):
                     wxyz, pos = to_viser_pose(T)
                     h.wxyz, h.position = wxyz, pos
+                    self.frustums = [(f, T[:3, 3].copy() if f is h else c) for f, c in self.frustums]
                     if np.linalg.norm(T[:3, 3] - hist[-1]) > 1e-6:
                         hist.append(T[:3, 3].copy())
                         if len(hist) > MAX_TRAJ_POINTS:
@@ -145,11 +173,16 @@ class RunScene:
             thickness=3.0, thickness_units="screen",
         )  # fmt: skip
 
-    def set_mirror_colors(self, scores: list[float] | None, lo: float = 12.0, hi: float = 30.0) -> None:
-        """Colour the mirrored frustums by their consistency PSNR (red = inconsistent)."""
+    def set_mirror_colors(self, scores: list[float] | None) -> None:
+        """Colour the mirrored frustums by their consistency PSNR on the red-yellow-green scale."""
         with self._lock:
             if scores is None or len(scores) != len(self.mirror_handles):
                 return
             for h, s in zip(self.mirror_handles, scores):
-                t = float(np.clip((s - lo) / (hi - lo), 0.0, 1.0)) if np.isfinite(s) else 1.0
-                h.color = (int(230 * (1 - t) + 30 * t), int(40 * (1 - t) + 170 * t), int(40 * (1 - t) + 60 * t))
+                h.color = palette.score_color(s)
+
+    def set_mirror_images(self, images: list[np.ndarray]) -> None:
+        """Put one image on each mirrored frustum (the flipped image, or a disagreement map)."""
+        with self._lock:
+            for h, img in zip(self.mirror_handles, images):
+                h.image = thumbnail(img, 96)

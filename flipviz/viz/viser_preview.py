@@ -1,0 +1,133 @@
+"""The live 3D preview: the field baked into a point cloud that the browser draws at full frame rate.
+
+Every `period_s` while training (and at each new run) the render worker asks the trainer for the
+field's opaque cells (`Trainer.point_cloud`, a few hundred ms) and sends them to each browser as
+its own point cloud, coloured by RGB, by opacity, or by beta^2 (where the variance head learned
+that the mirrored images disagree with the model). A browser shows the cloud while its camera
+moves, or always when it renders no view of its own; the exact server render replaces it once
+the camera is still.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+import viser
+
+from flipviz.data.images import to_uint8
+from flipviz.viz import palette
+from flipviz.viz.viser_render import RenderWorker
+
+COLOURS = ("RGB", "opacity", "beta^2")
+
+
+class LivePreview:
+    def __init__(
+        self, server: viser.ViserServer, worker: RenderWorker, bake: Callable[[], dict | None],
+        is_training: Callable[[], bool], step: Callable[[], int], period_s: float = 4.0,
+    ) -> None:  # fmt: skip
+        self.server, self.worker, self.bake_fn, self.is_training, self.step = server, worker, bake, is_training, step
+        self.period_s = period_s
+        self.baked: dict | None = None
+        self.visible: dict[int, bool] = {}  # client id -> cloud shown
+        self.handles: dict[int, viser.PointCloudHandle] = {}
+        self.last_bake_s, self.last_bytes = 0.0, 0
+        self._lock = threading.Lock()
+        gui = server.gui
+        self.enabled = gui.add_checkbox("Live 3D preview", True, hint="The field as points, drawn by your browser")
+        self.colour = gui.add_dropdown("Preview colour", COLOURS, initial_value="RGB")
+        self.colorbar = gui.add_image(np.full((46, 320, 3), 255, np.uint8), label="Preview scale", format="png")
+        self.colorbar.visible = False
+        self.status = gui.add_markdown("_The first bake comes with the first steps._")
+        self.enabled.on_update(lambda _: self._apply_all())
+        self.colour.on_update(lambda _: self._apply_all())
+
+    @property
+    def on(self) -> bool:
+        return bool(self.enabled.value)
+
+    # ---- baking -----------------------------------------------------------------------------
+    def request(self, delay: float = 0.0) -> None:
+        self.worker.submit("preview-bake", self._bake, priority=2, delay=delay)
+
+    def _bake(self) -> None:
+        if self.on:
+            t = time.perf_counter()
+            baked = self.bake_fn()
+            if baked is not None:
+                self.last_bake_s = time.perf_counter() - t
+                with self._lock:
+                    self.baked = dict(baked, step=self.step())
+                self._apply_all()
+        if self.is_training():
+            self.request(delay=self.period_s)
+
+    def clear(self) -> None:
+        with self._lock:
+            self.baked = None
+        for cid in list(self.visible):
+            self._client_scene(cid, lambda s: s.remove_by_name("/preview3d"))
+        self.handles.clear()
+
+    # ---- drawing ----------------------------------------------------------------------------
+    def colours(self, baked: dict) -> tuple[np.ndarray, tuple[float, float, str] | None]:
+        """(P, 3) uint8 colours of the points for the chosen colouring, and its scale."""
+        which = self.colour.value
+        if which == "opacity":
+            return palette.colormap(baked["alpha"], 0.0, 1.0), (0.0, 1.0, "opacity of one cell")
+        if which == "beta^2" and "beta2" in baked:
+            return palette.colormap(baked["beta2"], *palette.BETA2_RANGE), (*palette.BETA2_RANGE, "beta^2")
+        return to_uint8(baked["rgb"][:, None, :])[:, 0], None
+
+    def set_visible(self, client_id: int, visible: bool) -> None:
+        """Show or hide this client's cloud (the viewport renderer hides it under a still render)."""
+        if self.visible.get(client_id) == visible:
+            return
+        self.visible[client_id] = visible
+        handle = self.handles.get(client_id)
+        if handle is not None:
+            handle.visible = visible
+        else:
+            self._client_scene(client_id, lambda s: self._draw(s, client_id))
+
+    def remove_client(self, client_id: int) -> None:
+        self.visible.pop(client_id, None)
+        self.handles.pop(client_id, None)
+
+    def _apply_all(self) -> None:
+        with self._lock:
+            baked = self.baked
+        bar = self.colours(baked)[1] if baked is not None else None
+        self.colorbar.visible = bar is not None and self.on
+        if bar is not None:
+            self.colorbar.image = palette.colorbar(*bar)
+        if baked is not None:
+            n, kb = len(baked["points"]), len(baked["points"]) * 9 / 1024  # float16 xyz + uint8 rgb
+            self.last_bytes = int(kb * 1024)
+            self.status.content = (
+                f"{n} points at step {baked['step']}, baked in {1000 * self.last_bake_s:.0f} ms, {kb:.0f} kB"
+                if self.on else "_Preview off._"
+            )  # fmt: skip
+        for cid in list(self.visible):
+            self._client_scene(cid, lambda s, cid=cid: self._draw(s, cid))
+
+    def _draw(self, scene: viser.SceneApi, client_id: int) -> None:
+        with self._lock:
+            baked = self.baked
+        if baked is None or not self.on:
+            scene.remove_by_name("/preview3d")
+            self.handles.pop(client_id, None)
+            return
+        colours, _ = self.colours(baked)
+        self.handles[client_id] = scene.add_point_cloud(
+            "/preview3d", baked["points"], colours, point_size=float(baked["cell"]) * 1.2, point_shape="square",
+            precision="float16", visible=self.visible.get(client_id, True),
+        )  # fmt: skip
+
+    def _client_scene(self, client_id: int, fn: Callable[[viser.SceneApi], None]) -> None:
+        client = self.server.get_clients().get(client_id)
+        if client is not None:
+            fn(client.scene)

@@ -1,0 +1,122 @@
+"""The Train tab: what the run is doing (status, step, PSNR, ETA, a PSNR plot) and its controls
+(pause / resume, restart with another scene, method, configuration or step count)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import viser
+
+from flipviz.data.scenes import SCENES
+from flipviz.training.config import METHODS
+from flipviz.training.events import SetupEvent, StepEvent
+
+DATA_FOLDER = "(a data folder)"
+
+
+@dataclass
+class RunChoice:
+    """What the Restart form asks for."""
+
+    scene: str | None  # a built-in scene, or None with a data folder
+    data: str | None
+    method: str
+    config: int
+    steps: int
+
+
+def fmt_time(s: float) -> str:
+    s = max(0, int(round(s)))
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+
+
+class TrainPanel:
+    def __init__(
+        self, server: viser.ViserServer, on_pause: Callable[[], None], on_resume: Callable[[], None],
+        on_restart: Callable[[RunChoice], None],
+    ) -> None:  # fmt: skip
+        gui = server.gui
+        self.progress_md = gui.add_markdown("_Starting..._")
+        self.progress_bar = gui.add_progress_bar(0.0, animated=False, color="orange")
+        self.plot = gui.add_uplot(
+            (np.array([0.0, 1.0]), np.array([0.0, 0.0])),
+            ({"label": "step"}, {"label": "PSNR (train batch, dB)", "stroke": "#f07814", "width": 2}),
+            title="PSNR", scales={"x": {"time": False}}, aspect=1.6,
+        )  # fmt: skip
+        self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
+        self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
+        with gui.add_folder("Restart", expand_by_default=True):
+            self.scene_dd = gui.add_dropdown("Scene", (*SCENES, DATA_FOLDER), hint="A built-in object, or your own folder")
+            self.data_txt = gui.add_text("Data folder", "", hint="A Blender-format folder (transforms_test.json)")
+            self.method_dd = gui.add_dropdown("Method", METHODS)
+            self.config_dd = gui.add_dropdown("Configuration", tuple(str(i) for i in range(1, 9)))
+            self.steps_num = gui.add_number("Steps", 600, min=1, step=1)
+            self.restart_btn = gui.add_button("Restart training", icon=viser.Icon.REFRESH)
+        self.pause_btn.on_click(lambda _: on_pause())
+        self.resume_btn.on_click(lambda _: on_resume())
+        self.restart_btn.on_click(lambda _: on_restart(self.choice()))
+        self.scene_dd.on_update(lambda _: self._show_data_field())
+        self._show_data_field()
+
+    def _show_data_field(self) -> None:
+        self.data_txt.visible = self.scene_dd.value == DATA_FOLDER
+
+    def choice(self) -> RunChoice:
+        data = self.data_txt.value.strip() if self.scene_dd.value == DATA_FOLDER else None
+        scene = None if data is not None else self.scene_dd.value
+        return RunChoice(scene, data, self.method_dd.value, int(self.config_dd.value), int(self.steps_num.value))
+
+    def show_run(self, scene: str, data: str | None, method: str, config: int, steps: int) -> None:
+        """Put the form on the run that trains now."""
+        self.scene_dd.value = DATA_FOLDER if data else scene
+        self.data_txt.value = data or ""
+        self.method_dd.value, self.config_dd.value, self.steps_num.value = method, str(config), int(steps)
+        self._show_data_field()
+
+    def set_controls(self, status: str) -> None:
+        """Pause only while running, Resume only while paused."""
+        self.pause_btn.disabled = status != "running"
+        self.resume_btn.disabled = status != "paused"
+
+    def set_plot(self, steps: list[float], psnr: list[float]) -> None:
+        x, y = np.array(steps), np.array(psnr)
+        if len(x) < 2:
+            return
+        if len(x) > 400:
+            idx = np.linspace(0, len(x) - 1, 400).astype(int)
+            x, y = x[idx], y[idx]
+        self.plot.data = (x, y)
+
+    def show_progress(
+        self, setup: SetupEvent | None, status: str, ev: StepEvent | None, test_psnr: float | None,
+        render_share: float, message: str, run_dir: str | None,
+    ) -> None:  # fmt: skip
+        """The status text. During a restart it shows no number of the run that is going away."""
+        head = f"**{setup.scene} | {setup.method} | configuration {setup.config}**" if setup else "**flipviz**"
+        parts = [f"status: **{status}**"]
+        if ev is not None and status not in ("restarting", "starting"):
+            s = ev.scalars
+            rate = ev.step / ev.elapsed_s if ev.elapsed_s > 0 else float("nan")
+            parts += [
+                f"step **{ev.step}** / {ev.total_steps}",
+                f"loss {s.get('loss', float('nan')):.4f}",
+                f"PSNR {s.get('psnr', float('nan')):.2f} dB",
+                f"{rate:.1f} steps/s",
+            ]
+            if rate > 0 and status == "running":
+                parts.append(f"ETA {fmt_time((ev.total_steps - ev.step) / rate)}")
+            self.progress_bar.value = 100.0 * ev.step / max(1, ev.total_steps)
+            if test_psnr is not None:
+                parts.append(f"test PSNR **{test_psnr:.2f} dB**")
+        elif status in ("restarting", "starting"):
+            self.progress_bar.value = 0.0
+        parts.append(f"browser renders {100 * render_share:.0f}% of the time")
+        text = head + "\n\n" + " | ".join(parts)
+        if message:
+            text += f"\n\n_{message}_"
+        if run_dir is not None:
+            text += f"\n\nrun folder: `{run_dir}`"
+        if self.progress_md.content != text:
+            self.progress_md.content = text

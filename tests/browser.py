@@ -1,0 +1,62 @@
+"""A real headless Chromium (Debian's chromium + chromium-driver) driven by selenium, for the
+browser tests, the screenshots in assets/ and benchmarks/bench_viewer.py.
+
+Software WebGL (SwiftShader), a fixed window size, and free ports for the driver and DevTools.
+`chromium_available()` says whether the machine has both binaries.
+"""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import time
+from contextlib import contextmanager
+from typing import Iterator
+
+FLAGS = (
+    "--headless=new", "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+    "--window-size=1600,1000", "--no-sandbox", "--disable-dev-shm-usage", "--hide-scrollbars",
+)  # fmt: skip
+
+
+def _binary(*names: str) -> str | None:
+    return next((p for n in names if (p := shutil.which(n))), None)
+
+
+def chromium_available() -> bool:
+    return _binary("chromium", "chromium-browser") is not None and _binary("chromedriver") is not None
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextmanager
+def chromium() -> Iterator:
+    """A selenium WebDriver of headless Chromium; quit on exit."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = _binary("chromium", "chromium-browser")
+    for f in FLAGS:
+        opts.add_argument(f)
+    opts.add_argument(f"--remote-debugging-port={free_port()}")
+    driver = webdriver.Chrome(service=Service(_binary("chromedriver"), port=free_port()), options=opts)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def wait_until(cond, timeout: float = 60.0, every: float = 0.25, what: str = "condition"):
+    """Poll `cond()` until it returns something truthy; TimeoutError naming `what`."""
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(every)
+    raise TimeoutError(f"timed out waiting for {what}")

@@ -1,0 +1,225 @@
+"""The app in a real browser: headless Chromium (software WebGL) driven by selenium, as a user would.
+
+One app (real trainer, small images) and one browser go through: load, the live 3D preview, snap
+to a test view, beta^2 with its colour bar, moving the plane and scoring it, restart with B/L,
+adding and deleting a novel camera, switching scene. Each step checks the DOM, the app's state and
+the pixels of a screenshot. Skipped where Chromium or chromium-driver is missing (.ci/run installs
+them). Set FLIPVIZ_SHOTS=DIR to keep the screenshots.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from browser import chromium, chromium_available, wait_until
+
+from flipviz.viz import palette
+from flipviz.viz.viser_app import App, AppConfig
+
+pytestmark = pytest.mark.skipif(not chromium_available(), reason="needs chromium and chromium-driver")
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    os.environ.setdefault("FLIPVIZ_CACHE", str(tmp_path_factory.mktemp("cache")))
+    cfg = AppConfig(
+        scene="chair", res=48, steps=100_000, batch_rays=512, no_rrd=True, port=0, log_every=2, images_every=30,
+        checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("browser") / "run", view_width=640,
+    )  # fmt: skip
+    a = App(cfg).start()
+    wait_until(lambda: a.setup is not None and a.step > 20, 120, what="training to start")
+    yield a
+    a.stop()
+
+
+@pytest.fixture(scope="module")
+def browser(app):
+    with chromium() as d:
+        d.get(f"http://127.0.0.1:{app.port}")
+        wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        yield d
+
+
+def shot(d, name: str) -> np.ndarray:
+    """A screenshot as RGB (H, W, 3), saved under $FLIPVIZ_SHOTS when set."""
+    from PIL import Image
+
+    png = d.get_screenshot_as_png()
+    if os.environ.get("FLIPVIZ_SHOTS"):
+        Path(os.environ["FLIPVIZ_SHOTS"]).mkdir(parents=True, exist_ok=True)
+        (Path(os.environ["FLIPVIZ_SHOTS"]) / f"{name}.png").write_bytes(png)
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+def viewport(img: np.ndarray) -> np.ndarray:
+    """The 3D viewport: left of the control panel, without the toast corner."""
+    h, w = img.shape[:2]
+    return img[int(0.2 * h) : int(0.95 * h), int(0.2 * w) : int(0.68 * w)]
+
+
+def wait_view(d, name: str, ok, timeout: float = 60.0) -> np.ndarray:
+    """Screenshots until the viewport satisfies `ok(img)`; returns that viewport."""
+
+    def attempt():
+        img = viewport(shot(d, name))
+        return (img,) if ok(img) else None
+
+    return wait_until(attempt, timeout, every=1.0, what=name)[0]
+
+
+def colourful(img: np.ndarray) -> float:
+    """Fraction of pixels far from grey (the object's colours, a colormap), not the white background."""
+    f = img.astype(float)
+    return float(((f.max(-1) - f.min(-1)) > 40).mean())
+
+
+def by_label(d, label: str):
+    lab = wait_until(lambda: d.find_elements("xpath", f"//label[normalize-space()='{label}']"), 20, what=label)[0]
+    return d.find_element("id", lab.get_attribute("for"))
+
+
+def tab(d, name: str) -> None:
+    d.find_element("xpath", f"//*[@role='tab'][normalize-space()='{name}']").click()
+    time.sleep(0.3)
+
+
+def button(d, text: str) -> None:
+    el = wait_until(lambda: [b for b in d.find_elements("xpath", f"//button[normalize-space()='{text}']")
+                             if b.is_displayed()], 20, what=text)[0]  # fmt: skip
+    d.execute_script("arguments[0].scrollIntoView({block: 'center'});", el)
+    el.click()
+
+
+def choose(d, label: str, option: str) -> None:
+    el = by_label(d, label)
+    d.execute_script("arguments[0].scrollIntoView({block: 'center'});", el)
+    el.click()
+    wait_until(lambda: [o for o in d.find_elements("xpath", f"//*[@role='option'][normalize-space()='{option}']")
+                        if o.is_displayed()], 10, what=option)[0].click()  # fmt: skip
+
+
+def checkbox(d, label: str, value: bool) -> None:
+    el = by_label(d, label)
+    if el.is_selected() != value:
+        d.execute_script("arguments[0].click();", el)
+
+
+def panel_text(d) -> str:
+    return d.find_element("tag name", "body").text
+
+
+def test_1_load_shows_training_and_a_rendered_view(app, browser):
+    wait_until(lambda: "status: running" in panel_text(browser) or "step" in panel_text(browser), 30, what="status")
+    assert "chair | flip+u | configuration 1" in panel_text(browser)
+    img = wait_view(browser, "1_load", lambda i: colourful(i) > 0.01)
+    assert img.std() > 10  # not one flat colour
+
+
+def test_2_live_3d_preview_draws_without_server_renders(app, browser):
+    tab(browser, "Train")
+    checkbox(browser, "Render my view", False)
+    wait_until(lambda: app.preview.baked is not None, 60, what="a bake")
+    busy0 = app.worker.busy_s
+    img = wait_view(browser, "2_preview", lambda i: colourful(i) > 0.01, 30)
+    assert len(app.preview.baked["points"]) > 1000
+    cid = next(iter(app.views.clients))
+    assert app.preview.visible[cid] and app.views.clients[cid].enabled is False
+    assert colourful(img) > 0.01 and app.worker.busy_s - busy0 < 2.0  # no view renders, only bakes
+    checkbox(browser, "Render my view", True)
+
+
+def test_3_snap_to_a_test_view_hides_the_frustums_near_it(app, browser):
+    tab(browser, "Views")
+    key = next(k for k in app.snap.views if k.startswith("test 2"))
+    choose(browser, "View", key)
+    button(browser, "Snap to view")
+    wait_until(lambda: app.scene.hidden, 20, what="frustums near the view hidden")
+    cid = next(iter(app.views.clients))
+    wait_until(lambda: app.views.clients[cid].snapped is not None, 20, what="the snapped view")
+    time.sleep(2.0)
+    img = viewport(shot(browser, "3_snapped"))
+    assert img.std() > 10 and colourful(img) > 0.01
+    assert "PSNR" in panel_text(browser)  # the snapped view's score
+
+
+def test_4_beta2_with_its_colour_bar(app, browser):
+    tab(browser, "Train")
+    choose(browser, "Snapped view shows", "beta^2")
+    choose(browser, "My view shows", "beta^2")
+    time.sleep(3.0)
+    img = viewport(shot(browser, "4_beta2"))
+    wait_until(lambda: [e for e in browser.find_elements("xpath", "//*[normalize-space()='Colour scale']")
+                        if e.is_displayed()], 10, what="the colour bar")  # fmt: skip
+    cid = next(iter(app.views.clients))
+    assert app.views.clients[cid].gui["colorbar"].visible
+    # viridis' dark end (beta^2 near beta_min^2 fills the object): purple-blue pixels, no white chair
+    f = img.reshape(-1, 3).astype(int)
+    dark_viridis = ((f[:, 2] > f[:, 1]) & (f[:, 0] < 90) & (f[:, 2] > 60)).mean()
+    assert dark_viridis > 0.05
+    choose(browser, "My view shows", "RGB")
+    choose(browser, "Snapped view shows", "blend")
+
+
+def test_5_move_the_plane_and_score_it(app, browser):
+    tab(browser, "Mirror")
+    checkbox(browser, "Show plane gizmo", True)
+    assert app.mirror.gizmo.visible
+    el = by_label(browser, "Vertical plane azimuth")
+    browser.execute_script("arguments[0].scrollIntoView({block: 'center'});", el)
+    # the slider's number box: type 40 degrees
+    box = el.find_elements("xpath", "./ancestor::div[3]//input[not(@type='hidden')]")[-1]
+    box.click()
+    box.send_keys("\ue009a")  # Ctrl-A
+    box.send_keys("40\n")
+
+    def azimuth() -> float:
+        n = np.asarray(app.mirror.plane.normal)
+        return float(np.degrees(np.arctan2(n[1], n[0])))
+
+    wait_until(lambda: app.mirror.moved and abs(azimuth() - 40.0) < 1.5, 20, what="the plane at 40 degrees")
+    button(browser, "Score mirrors")
+    wait_until(lambda: any("plane preview" in k for k in app.mirror.scores), 60, what="the scores")
+    scores = next(v for k, v in app.mirror.scores.items() if "plane preview" in k)
+    colours = [tuple(h.color) for h in app.mirror.preview]
+    assert colours == [palette.score_color(s) for s in scores]  # preview frustums wear their scores
+    assert "plane preview" in panel_text(browser)
+    shot(browser, "5_plane_scored")
+    checkbox(browser, "Show plane gizmo", False)
+    button(browser, "Reset plane")
+
+
+def test_6_add_and_delete_a_novel_camera(app, browser):
+    tab(browser, "Views")
+    button(browser, "Add novel camera")
+    wait_until(lambda: app.novel.gizmos, 20, what="a novel camera")
+    name = next(iter(app.novel.gizmos))
+    button(browser, "Delete camera")
+    wait_until(lambda: name not in app.novel.gizmos, 20, what="the camera deleted")
+
+
+def test_7_restart_with_bl(app, browser):
+    tab(browser, "Train")
+    choose(browser, "Method", "bl")
+    button(browser, "Restart training")
+    wait_until(lambda: app.setup is not None and app.setup.method == "bl" and app.step > 5, 120, what="the B/L run")
+    wait_until(lambda: "chair | bl | configuration 1" in panel_text(browser), 30, what="the status of B/L")
+    assert not app.scene.mirror_handles  # B/L trains on no mirror: none drawn
+    tab(browser, "Mirror")
+    assert "no** mirrored view" in app.mirror.plane_text.content or "no mirrored view" in panel_text(browser)
+    shot(browser, "7_bl")
+
+
+def test_8_switch_scene(app, browser):
+    tab(browser, "Train")
+    choose(browser, "Scene", "mug")
+    choose(browser, "Method", "flip+u")
+    button(browser, "Restart training")
+    wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step > 5, 180, what="the mug run")
+    wait_until(lambda: "mug | flip+u" in panel_text(browser), 30, what="the mug's status")
+    img = wait_view(browser, "8_mug", lambda i: i.std() > 10)
+    assert img.std() > 10
