@@ -41,7 +41,7 @@ class BenchConfig:
     """Length of each phase."""
     clients: tuple[int, ...] = (0, 1, 0, 4, 0)
     """Client counts, one phase each; solo phases between them track the (noisy, drifting) solo speed."""
-    view_width: int = 192
+    view_width: int = AppConfig.view_width
     render_duty: float = 0.25
     warmup_s: float = 20.0
     """Training time before the first phase (the first steps are slower)."""

@@ -36,6 +36,8 @@ class ProgressObserver(Observer):
         s = event.scalars
         self.postfix.update(loss=f"{s.get('loss', float('nan')):.4f}", psnr=f"{s.get('psnr', float('nan')):.2f}")
         self.bar.set_postfix(self.postfix, refresh=False)
+        if event.step == event.total_steps:  # the final evaluation follows and takes a few seconds
+            self.bar.set_description(f"{self.bar.desc}: evaluating the unobserved views", refresh=True)
 
     def on_images(self, event: ImagesEvent) -> None:
         if self.bar is not None and "test_psnr" in event.scalars:

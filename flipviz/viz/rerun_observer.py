@@ -15,6 +15,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 import rerun as rr
 
@@ -79,6 +80,7 @@ class RerunObserver(Observer):
         self._sinks_ready = False
         self._closed = False
         self._frustum_scale = 0.3
+        self._series_colors = [tuple(int(255 * c) for c in rgb[:3]) for rgb in matplotlib.colormaps["tab10"].colors]
 
     # ------------------------------------------------------------------ sinks
     def _attach_sinks(self, blueprint: rr.blueprint.Blueprint) -> None:
@@ -122,7 +124,7 @@ class RerunObserver(Observer):
             # Refined mirrored cameras exist only when the method trains on mirrors (plane given).
             mirrors = [c.camera.name for c in event.cameras if c.kind == "mirror_init"] if event.plane else []
             if not self._sinks_ready:
-                self._attach_sinks(make_blueprint(tests, mirrors))
+                self._attach_sinks(make_blueprint(tests, mirrors, event.sphere_center, float(event.sphere_radius)))
             self._mirror_names = [entity_name(n) for n in mirrors]
             self._log_setup(event)
             self._maybe_flush(force=True)
@@ -178,7 +180,8 @@ class RerunObserver(Observer):
         self._prev_centers = np.stack([i.camera.center for i in inits]) if inits else None
         if inits:
             for q in ("rot_change_deg", "trans_change", "rot_err_deg", "trans_err"):
-                rec.log(f"curves/mirror/{q}", rr.SeriesLines(names=self._mirror_names), static=True)
+                rec.log(f"curves/mirror/{q}", rr.SeriesLines(names=self._mirror_names, colors=self._series_colors),
+                        static=True)
         settings = "\n".join(f"- **{k}**: {v}" for k, v in e.settings.items())
         rec.log(
             "run",

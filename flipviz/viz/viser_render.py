@@ -243,7 +243,10 @@ class ViewportRenderer:
         now = time.monotonic()
         moving_already = now - view.last_move < self.settle_s
         view.last_move, view.version = now, view.version + 1
-        if not moving_already and view.enabled and self.preview_shown():
+        if not self.preview_shown():  # no 3D preview: a coarse render follows the camera
+            self.request(client_id)
+            return
+        if not moving_already and view.enabled:
             view.client.scene.set_background_image(None)  # the browser's own 3D preview, at full frame rate
             self.show_preview(client_id, True)
         self.request(client_id, delay=self.settle_s, debounce=True)
@@ -304,12 +307,13 @@ class ViewportRenderer:
         view = self.clients.get(client_id)
         if view is None or not view.enabled or view.version != version:
             return  # gone, switched off, or the camera moved since: a newer request is queued
-        if time.monotonic() - view.last_move < self.settle_s:
+        moving = time.monotonic() - view.last_move < self.settle_s
+        if moving and self.preview_shown():  # the browser draws the 3D preview meanwhile
             return self.request(client_id, delay=self.settle_s, debounce=True)
         if view.snapped is not None and not self._at(view, view.snapped.camera):
             view.snapped = None  # the camera was moved away (checked once still: a snap may animate)
             self.on_unsnap()
-        got = self._camera(view, pass_idx)
+        got = self._camera(view, 0 if moving else pass_idx)
         if got is None:
             return
         cam, n_passes = got
@@ -322,6 +326,8 @@ class ViewportRenderer:
         view.gui["colorbar"].visible = bar is not None
         if bar is not None:
             view.gui["colorbar"].image = palette.colorbar(*bar)
+        if moving:  # a coarse frame while the camera moves; the passes once it is still
+            return self.request(client_id, delay=self.settle_s, debounce=True)
         if pass_idx + 1 == n_passes:
             self.show_preview(client_id, False)  # the exact view replaces the preview
         if pass_idx + 1 < n_passes:  # the next, finer pass

@@ -1,0 +1,81 @@
+"""The README's screenshots of the app, from a real headless Chromium (see tests/browser.py).
+
+    python benchmarks/app_screenshots.py --out assets
+
+1. app.png: the chair training (Flip+U), your view rendered at the canvas size;
+2. app_snapped.png: snapped to an unobserved test view, ground truth and render blended half-half;
+3. app_mirror.png: the mug, its mirrored frustums coloured by their scores and showing where the
+   flipped images disagree with the model.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import tyro
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+from browser import chromium, wait_until  # noqa: E402
+from test_browser import button, checkbox, choose, tab  # noqa: E402
+
+from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
+
+
+@dataclass
+class Args:
+    out: Path = ROOT / "assets"
+    steps_before: int = 700
+    """Training steps before the first screenshot."""
+
+
+def main(args: Args) -> None:
+    args.out.mkdir(parents=True, exist_ok=True)
+    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
+    app = App(cfg).start()
+    try:
+        wait_until(lambda: app.step >= args.steps_before, 600, what="training")
+        with chromium() as d:
+            d.get(f"http://127.0.0.1:{app.port}")
+            wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
+            time.sleep(6.0)
+            for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
+                toast.click()  # the "software WebGL" notice of headless Chromium
+            d.save_screenshot(str(args.out / "app.png"))
+            tab(d, "Views")
+            key = next(k for k in app.snap.views if k.startswith("test 3"))
+            choose(d, "View", key)
+            button(d, "Snap to view")
+            time.sleep(1.0)
+            tab(d, "Train")
+            for v in app.views.clients.values():
+                v.gui["blend"].value = 0.5
+            time.sleep(4.0)
+            d.save_screenshot(str(args.out / "app_snapped.png"))
+            choose(d, "Scene", "mug")
+            button(d, "Restart training")
+            wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before, 600,
+                       what="the mug")  # fmt: skip
+            d.refresh()
+            wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
+            time.sleep(4.0)
+            for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
+                toast.click()
+            tab(d, "Mirror")
+            choose(d, "Mirrored frustums show", "disagreement")
+            checkbox(d, "Show plane preview", False)
+            button(d, "Score mirrors")
+            wait_until(lambda: any("now" in k for k in app.mirror.scores), 120, what="the scores")
+            time.sleep(3.0)
+            d.save_screenshot(str(args.out / "app_mirror.png"))
+    finally:
+        app.stop()
+    print(f"screenshots in {args.out}")
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
