@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 import threading
 from dataclasses import dataclass
@@ -41,6 +42,7 @@ def _run_train(cfg: TrainConfig) -> int:
     from flipviz.training.trainer import default_run_dir
 
     logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
+    cfg.validate()
     if cfg.out is None:
         cfg.out = default_run_dir(cfg)
     rerun = None
@@ -81,7 +83,10 @@ def _serve_until_interrupted(url: str | None) -> None:
 def _export(cmd: ExportScene) -> int:
     from flipviz.data.blender import export_scene
 
-    export_scene(cmd.scene, cmd.out_dir, res=cmd.res)
+    try:
+        export_scene(cmd.scene, cmd.out_dir, res=cmd.res)
+    except OSError as e:
+        raise UserError(f"cannot write {cmd.out_dir}: {e.strerror or e}") from None
     print(f"wrote {cmd.scene} to {cmd.out_dir}")
     return 0
 
@@ -113,19 +118,46 @@ def _dispatch(cmd) -> int:
     return _export(cmd)
 
 
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where Ctrl-C would be, so they stop as gracefully as Ctrl-C."""
+
+
+_received: list[int] = []  # the stopping signals received by this process, in order
+
+
+def _on_signal(signum: int, frame) -> None:
+    _received.append(signum)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise Interrupted(signal.Signals(signum).name)
+
+
 def guarded(fn: Callable[[], int]) -> int:
-    """Run a command; bad input is one line on stderr (exit 2), Ctrl-C outside a training loop exit 130.
+    """Run a command: bad input is one line on stderr (exit 2); Ctrl-C, SIGTERM and SIGHUP stop it
+    gracefully (a training keeps its checkpoint and recording) with exit 128 + the signal's number.
 
     Only `UserError` is bad input; any other exception is a bug and keeps its traceback.
     """
+    stops = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    main = threading.current_thread() is threading.main_thread()
+    before = {sig: signal.signal(sig, _on_signal) for sig in stops} if main else {}
+    _received.clear()
     try:
-        return fn()
+        code = fn()
     except UserError as e:  # bad input: one line, no traceback
         print(f"flipviz: error: {e}".splitlines()[0], file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # Ctrl-C outside the training loop (setup, loading): no traceback
-        print("flipviz: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt:  # outside the training loop (setup, loading): no traceback
+        signum = _received[0] if _received else signal.SIGINT
+        print(f"flipviz: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+        return 128 + signum
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+    if _received:  # the training loop caught the signal and stopped gracefully
+        print(f"flipviz: stopped by {signal.Signals(_received[0]).name}", file=sys.stderr)
+        return 128 + _received[0]
+    return code
 
 
 if __name__ == "__main__":

@@ -46,3 +46,65 @@ def _plain(o: Any) -> Any:
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+class FolderLock:
+    """An exclusive lock on a folder (`.flipviz.lock` inside it), held until `release()` or exit.
+
+    A second process asking for the same folder gets a one-line UserError naming the holder, so
+    two runs never write into one run folder.
+    """
+
+    NAME = ".flipviz.lock"
+
+    def __init__(self, folder: Path | str) -> None:
+        import fcntl
+
+        from flipviz.errors import UserError
+
+        self.path = Path(folder) / self.NAME
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, "a+")
+        try:
+            fcntl.flock(self._f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._f.seek(0)
+            holder = self._f.read().strip() or "another process"
+            self._f.close()
+            raise UserError(f"run folder {self.path.parent} is in use by {holder}; choose another --out") from None
+        self._f.seek(0)
+        self._f.truncate()
+        self._f.write(f"flipviz pid {os.getpid()}")
+        self._f.flush()
+
+    def release(self) -> None:
+        if not self._f.closed:
+            self._f.close()  # closing drops the flock
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Ctrl-C, SIGTERM and SIGHUP wait until the block ends, so that a file being written is never
+    cut in half by an interrupt: their handlers are swapped for ones that only take note, and the
+    first signal noted is handled once the block is done. Main thread only (elsewhere a no-op:
+    Python delivers signals to the main thread)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    noted: list[int] = []
+    sigs = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    old = {s: signal.signal(s, lambda signum, frame: noted.append(signum)) for s in sigs}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        if noted:
+            handler = old[noted[0]]
+            if callable(handler):  # Python's own (KeyboardInterrupt) or flipviz's CLI handler
+                handler(noted[0], None)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(noted[0])

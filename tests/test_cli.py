@@ -56,4 +56,4 @@ def test_ctrl_c_during_setup_is_one_line(tmp_path: Path, monkeypatch, capsys) ->
     monkeypatch.setattr(trainer.Trainer, "__init__", interrupted)
     code = cli.main(["train", "--scene", "chair", "--steps", "1", "--out", str(tmp_path / "run")])
     assert code == 130
-    assert capsys.readouterr().err == "flipviz: interrupted\n"
+    assert capsys.readouterr().err == "flipviz: interrupted (SIGINT)\n"

@@ -99,6 +99,7 @@ def plan(cfg: BenchConfig) -> list[RunSpec]:
     scenes = [resolve_scene(s, cfg.data_root) for s in parse_list(cfg.scenes)]
     if not scenes:
         raise UserError("--scenes is empty")
+    RunSpec(*scenes[0], methods[0], configs[0]).train_config(cfg).validate()  # the settings every run shares
     specs: dict[str, RunSpec] = {}
     for scene, data in scenes:
         for n in configs:

@@ -85,15 +85,24 @@ def load_blender(
         raise DatasetError(f"resolution must be a positive integer, got {res!r}")
 
     try:
+        if not isinstance(meta, dict):
+            raise ValueError(f"the top level is a JSON {type(meta).__name__}, not an object with 'frames'")
         angle_x = float(meta["camera_angle_x"])
+        if not isinstance(meta["frames"], list):
+            raise ValueError(f"'frames' is a JSON {type(meta['frames']).__name__}, not a list of frames")
         frames = list(meta["frames"])
         if not frames:
             raise ValueError("no frames")
         entries = []
         for k, fr in enumerate(frames):
+            if not isinstance(fr, dict):
+                raise ValueError(f"frame {k} is a JSON {type(fr).__name__}, not an object")
             c2w = np.asarray(fr["transform_matrix"], dtype=np.float64)
             if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
                 raise ValueError(f"frame {k}: transform_matrix is not a finite 4x4 matrix")
+            R = c2w[:3, :3]
+            if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or abs(np.linalg.det(R) - 1.0) > 1e-3:
+                raise ValueError(f"frame {k}: the rotation of transform_matrix is not a rotation (orthonormal, det 1)")
             entries.append((int(fr["orbit_index"]) if "orbit_index" in fr else k, str(fr["file_path"]), c2w))
     except (KeyError, TypeError, ValueError) as e:
         what = f"missing key {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]
@@ -115,6 +124,8 @@ def load_blender(
         if not ipath.is_file():
             raise DatasetError(f"image {ipath} listed in {jpath.name} not found")
         rgba = _read_rgba(ipath)
+        if res is not None and res > rgba.shape[1]:
+            raise DatasetError(f"--res {res} is wider than the images of {root} ({rgba.shape[1]} px); flipviz does not upscale")
         if size is None:
             size = rgba.shape[:2]
         elif rgba.shape[:2] != size:

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import torch
 
-from flipviz.files import atomic_path
+from flipviz.errors import UserError
+from flipviz.files import atomic_path, signals_deferred
 
 CHECKPOINT_NAME = "checkpoint.pt"
 
@@ -27,17 +28,24 @@ def checkpoint_path(path: Path | str) -> Path:
 
 
 def save_checkpoint(path: Path, state: dict) -> Path:
-    """Write `state` (plain data + tensors) to `path`, atomically."""
-    with atomic_path(path) as tmp:
+    """Write `state` (plain data + tensors) to `path`, atomically; interrupts wait until it is written."""
+    with signals_deferred(), atomic_path(path) as tmp:
         torch.save(state, tmp)
     return Path(path)
 
 
 def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") -> dict:
-    p = checkpoint_path(path)
-    state = torch.load(p, map_location=map_location, weights_only=False)
+    """A checkpoint written by `save_checkpoint`; anything else (missing, truncated, foreign) is a UserError."""
+    try:
+        p = checkpoint_path(path)
+    except FileNotFoundError as e:
+        raise UserError(f"cannot resume: {e}") from None
+    try:
+        state = torch.load(p, map_location=map_location, weights_only=False)
+    except Exception as e:  # truncated, garbage, another format: torch and pickle raise many kinds
+        raise UserError(f"cannot resume: {p} is not a readable checkpoint ({type(e).__name__})") from None
     if not isinstance(state, dict) or "step" not in state or "model" not in state:
-        raise ValueError(f"{p} is not a flipviz checkpoint")
+        raise UserError(f"cannot resume: {p} is not a flipviz checkpoint")
     return state
 
 

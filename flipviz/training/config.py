@@ -6,8 +6,28 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
 
+from flipviz.errors import UserError
+
 Method = Literal["bl", "bl+u", "flip", "flip+u", "upper"]
 METHODS: tuple[str, ...] = ("bl", "bl+u", "flip", "flip+u", "upper")
+
+
+def check_device(device: str) -> None:
+    """`device` names a torch device this machine has: cpu, cuda or cuda:N (when CUDA is there)."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except RuntimeError:
+        raise UserError(f"--device {device!r} is not a device; use cpu, cuda or cuda:N") from None
+    if dev.type == "cpu":
+        return
+    if dev.type != "cuda":
+        raise UserError(f"--device {device!r} is not supported; use cpu, cuda or cuda:N")
+    if not torch.cuda.is_available():
+        raise UserError(f"--device {device!r}: no CUDA device is available here (torch {torch.__version__}); use --device cpu")
+    if dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise UserError(f"--device {device!r}: only {torch.cuda.device_count()} CUDA device(s) here")
 
 
 @dataclass
@@ -23,10 +43,11 @@ class TrainConfig:
     config: int = 1
     """Protocol configuration n = 1..8 (which half ring is observed)."""
     res: int = 100
-    """Image width in pixels (images are square)."""
+    """Image width in pixels (images are square), 8..1024; at most the data's own width."""
     steps: int = 600
-    """Optimisation steps."""
+    """Optimisation steps, 1..10,000,000."""
     batch_rays: int = 1024
+    """Rays per step, 1..1,000,000."""
     field: Literal["grid", "nerf"] = "grid"
     """grid: fast dense voxel grid (default); nerf: vanilla NeRF MLP, the paper's setting."""
     mirror_plane: str = "official"
@@ -43,9 +64,9 @@ class TrainConfig:
     out: Path | None = None
     """Run folder (default runs/<scene>-<method>-<config>-<time>)."""
     log_every: int = 10
-    """Steps between StepEvents."""
+    """Steps between StepEvents (>= 1)."""
     images_every: int = 250
-    """Steps between ImagesEvents (test renders and beta^2 maps)."""
+    """Steps between ImagesEvents (test renders and beta^2 maps); 0: none."""
     rrd: Path | None = None
     """Rerun recording path (default <run folder>/recording.rrd)."""
     no_rrd: bool = False
@@ -59,16 +80,32 @@ class TrainConfig:
     density_weight: float = 0.01
     """w of the density regulariser (w / N_s) sum sigma in the uncertainty loss (paper Sec. IV-C)."""
     checkpoint_every: int = 500
-    """Steps between checkpoints (atomic; a non-finite state is never written)."""
+    """Steps between checkpoints (atomic; a non-finite state is never written); 0: only at the end."""
     eval_on_stop: bool = True
     """Evaluate the test views also when a run is stopped early."""
     beta2_mode: Literal["linear", "variance"] = "linear"
     """How the per-sample variances composite into beta_hat^2 (see flipviz/model/renderer.py)."""
     n_samples: int = 64
-    """Samples per ray, in training and rendering. Measured on the chair at 100 px: 64 gives the
+    """Samples per ray, in training and rendering, 2..1024. Measured on the chair at 100 px: 64 gives the
     same held-out PSNR as 128 (27.1 dB) at half the time."""
     grid_res: tuple[int, ...] | None = None
     """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
+
+    def validate(self) -> "TrainConfig":
+        """Every setting within its stated limits, else one `UserError` line; train, app and bench call it."""
+        bounds = {  # name: (lowest, highest)
+            "config": (1, 8), "res": (8, 1024), "steps": (1, 10_000_000), "batch_rays": (1, 1_000_000),
+            "n_samples": (2, 1024), "log_every": (1, 10_000_000), "images_every": (0, 10_000_000),
+            "checkpoint_every": (0, 10_000_000), "uncertainty_start": (0.0, 1.0), "density_weight": (0.0, 1e6),
+        }  # fmt: skip
+        for name, (lo, hi) in bounds.items():
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                raise UserError(f"--{name.replace('_', '-')} must be in {lo}..{hi}, got {v!r}")
+        if self.grid_res is not None and (not self.grid_res or any(not 8 <= r <= 512 for r in self.grid_res)):
+            raise UserError(f"--grid-res needs resolutions in 8..512, got {self.grid_res!r}")
+        check_device(self.device)
+        return self
 
     def to_dict(self) -> dict:
         d = asdict(self)

@@ -26,6 +26,8 @@ import torch
 
 from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
+from flipviz.errors import UserError
+from flipviz.files import FolderLock
 from flipviz.geometry.poses import pose_errors
 from flipviz.model.objective import psnr
 from flipviz.training import artifacts
@@ -66,9 +68,17 @@ def default_run_dir(cfg: TrainConfig) -> Path:
     return Path("runs") / f"{scene_label(cfg)}-{cfg.method}-{cfg.config}-{stamp}"
 
 
+def writable_run_dir(path: Path) -> FolderLock:
+    """Create the run folder and lock it for this process; one UserError line when it cannot be."""
+    try:
+        return FolderLock(path)
+    except OSError as e:
+        raise UserError(f"cannot write the run folder {path}: {e.strerror or e}") from None
+
+
 class Trainer:
     def __init__(self, cfg: TrainConfig, scene: SceneData | None = None) -> None:
-        self.cfg = cfg
+        self.cfg = cfg.validate()
         torch.manual_seed(cfg.seed)
         self._gen = torch.Generator().manual_seed(cfg.seed)
         self.scene = scene if scene is not None else load_scene_for(cfg)
@@ -78,6 +88,7 @@ class Trainer:
         self.opt_field = self.model.make_optimizer()
         self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
         self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
+        self._lock_file = writable_run_dir(self.run_dir)  # released when run() ends
         self.step = 0
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
         self._observers: list[Observer] = []
@@ -173,7 +184,6 @@ class Trainer:
     def run(self) -> dict:
         """Train to cfg.steps (or until stopped / NaN); returns the final metrics."""
         cfg = self.cfg
-        self.run_dir.mkdir(parents=True, exist_ok=True)
         self._emit("on_setup", self.setup_event)
         status, message = "finished", ""
         try:
@@ -198,20 +208,27 @@ class Trainer:
             log.error("%s", message)
         except KeyboardInterrupt:
             status, message = "stopped", "interrupted"
+        except UserError as e:  # e.g. the disk is full: one line, the last good checkpoint stays
+            status, message = "error", str(e)
         except Exception as e:
             status, message = "error", f"{type(e).__name__}: {e}"
             log.exception("training failed")
+        if status in ("finished", "stopped") and not ckpt.state_is_finite(self.model.state_dict()):
+            status, message = "nan", f"the model is not finite at step {self.step}; last good checkpoint kept in {self.run_dir}"
         metrics: dict = {}
-        if status in ("finished", "stopped"):
-            self.save_checkpoint()
-            if status == "finished" or cfg.eval_on_stop:
-                try:
+        try:
+            if status in ("finished", "stopped") and self.save_checkpoint() is not None:
+                if status == "finished" or cfg.eval_on_stop:
                     metrics = self.evaluate()
                     self._emit("on_images", self._images_event())
-                except KeyboardInterrupt:  # a second Ctrl-C skips the evaluation, keeps the checkpoint
-                    status = "stopped"
-                    message = f"interrupted during the final evaluation; checkpoint kept in {self.run_dir}"
-                    metrics = {}
+        except KeyboardInterrupt:  # a second Ctrl-C skips the evaluation, keeps the checkpoint
+            status = "stopped"
+            message = f"interrupted during the final evaluation; checkpoint kept in {self.run_dir}"
+            metrics = {}
+        except UserError as e:
+            status, message, metrics = "error", str(e), {}
+        finally:
+            self._lock_file.release()
         metrics = dict(metrics, status=status, message=message, steps=self.step, run_dir=str(self.run_dir))
         self._emit("on_end", EndEvent(self.step, status, message, metrics))
         return metrics
@@ -230,10 +247,14 @@ class Trainer:
         if pose:
             m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items()}
         if write:
-            artifacts.write_test_renders(self.run_dir, [v.name for v in tests], preds, [v.rgb for v in tests])
-            if self.training.mirror_ids:
-                artifacts.write_transforms(self.run_dir, self.mirror_cameras(), [v.image for v in self.training.mirror_views])
-            artifacts.write_metrics(self.run_dir, m)
+            try:
+                artifacts.write_test_renders(self.run_dir, [v.name for v in tests], preds, [v.rgb for v in tests])
+                if self.training.mirror_ids:
+                    mirrors = [v.image for v in self.training.mirror_views]
+                    artifacts.write_transforms(self.run_dir, self.mirror_cameras(), mirrors)
+                artifacts.write_metrics(self.run_dir, m)
+            except OSError as e:
+                raise UserError(f"cannot write the results in {self.run_dir}: {e.strerror or e}") from None
         return m
 
     # ------------------------------------------------------------------ checkpoints
@@ -251,17 +272,32 @@ class Trainer:
         }
 
     def save_checkpoint(self) -> Path | None:
-        """Write checkpoint.pt (atomically), unless the state is not finite (keeps the last good one)."""
+        """Write checkpoint.pt (atomically), unless the state is not finite (keeps the last good one).
+
+        A failed write (a full disk, a read-only folder) is a UserError naming the file; the last
+        good checkpoint stays and no temporary file is left.
+        """
+        path = self.run_dir / ckpt.CHECKPOINT_NAME
         with self._lock:
             state = self.checkpoint_state()
             if not (ckpt.state_is_finite(state["model"]) and ckpt.state_is_finite(state["poses"] or {})):
                 log.warning("not saving a non-finite state at step %d; the last good checkpoint is kept", self.step)
                 return None
-            return ckpt.save_checkpoint(self.run_dir / ckpt.CHECKPOINT_NAME, state)
+            try:
+                return ckpt.save_checkpoint(path, state)
+            except OSError as e:
+                raise UserError(f"cannot write {path}: {e.strerror or e}; the last good checkpoint is kept") from None
 
     def _load(self, path: Path | str) -> None:
         state = ckpt.load_checkpoint(path, map_location=self.model.device)
-        self.model.load_state_dict(state["model"])
+        theirs = state.get("config", {})
+        for key in ("method", "field", "scene", "config"):
+            if key in theirs and theirs[key] != getattr(self.cfg, key) and not (key == "scene" and self.cfg.data):
+                raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {getattr(self.cfg, key)!r}")
+        try:
+            self.model.load_state_dict(state["model"])
+        except (RuntimeError, KeyError) as e:
+            raise UserError(f"cannot resume: {path} does not fit this run's model ({str(e).splitlines()[0][:120]})") from None
         self.opt_field = self.model.make_optimizer()
         self.opt_field.load_state_dict(state["opt_field"])
         if self.refiner is not None and state.get("poses") is not None:

@@ -21,6 +21,7 @@ import rerun as rr
 
 from flipviz.data.cameras import Camera
 from flipviz.data.images import to_uint8
+from flipviz.errors import UserError
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent
 from flipviz.viz import palette
@@ -303,7 +304,24 @@ class RerunObserver(Observer):
         return self.viewer.url if self.viewer is not None else None
 
 
+def recording_path(cfg: TrainConfig, run_dir: Path) -> Path | None:
+    """Where a run records: cfg.rrd, else <run_dir>/recording.rrd; a resumed run never overwrites an
+    earlier recording but writes the next free recording.N.rrd beside it (open them together:
+    `rerun <run folder>/*.rrd`). A path that cannot be written is a one-line UserError."""
+    if cfg.no_rrd:
+        return None
+    path = Path(cfg.rrd) if cfg.rrd is not None else Path(run_dir) / "recording.rrd"
+    if cfg.resume is not None and path.exists():
+        path = next(p for n in range(1, 10_000) if not (p := path.with_name(f"{path.stem}.{n}{path.suffix}")).exists())
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "ab"):
+            pass
+    except OSError as e:
+        raise UserError(f"cannot write the recording {path}: {e.strerror or e}") from None
+    return path
+
+
 def make_rerun_observer(cfg: TrainConfig, run_dir: Path, **overrides) -> RerunObserver:
-    """The observer the CLI and the app attach (cfg.rrd, default <run_dir>/recording.rrd; cfg.rerun_serve)."""
-    path = None if cfg.no_rrd else Path(cfg.rrd) if cfg.rrd is not None else Path(run_dir) / "recording.rrd"
-    return RerunObserver(RerunOptions(path=path, serve=cfg.rerun_serve, **overrides))
+    """The observer the CLI and the app attach (see `recording_path`; cfg.rerun_serve)."""
+    return RerunObserver(RerunOptions(path=recording_path(cfg, run_dir), serve=cfg.rerun_serve, **overrides))

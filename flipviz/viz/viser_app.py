@@ -74,7 +74,13 @@ def _scene_key(cfg: TrainConfig) -> tuple:
 
 
 def check_run_input(cfg: TrainConfig) -> SceneData:
-    """Load the scene and build its mirror plane before serving: bad input fails in one line, at once."""
+    """Check the settings, load the scene and build its mirror plane, and check a --resume checkpoint,
+    all before serving: bad input fails in one line, at once."""
+    cfg.validate()
+    if cfg.resume is not None:
+        from flipviz.training.checkpoint import load_checkpoint
+
+        load_checkpoint(cfg.resume)
     scene = load_scene(cfg.scene, cfg.data, cfg.res)
     make_mirror_set(make_split(scene, cfg.config).inputs, cfg.mirror_plane, scene.symmetry_plane)
     return scene

@@ -1,0 +1,235 @@
+"""Nothing lost, ever: interrupts, SIGTERM, resume, a full disk, shared folders, bad options.
+
+Each test names the case of docs/RELIABILITY.md it keeps true. Signals go to real subprocesses.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from test_rerun import read_rrd, rows_by_step
+
+from flipviz import cli
+from flipviz.errors import UserError
+from flipviz.training.checkpoint import load_checkpoint
+from flipviz.training.config import TrainConfig
+from flipviz.training.trainer import Trainer
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = dict(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0)
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def flipviz(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "flipviz.cli", *args], cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout, env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+
+
+def one_line_error(r, code: int = 2) -> str:
+    err = r.stderr.strip()
+    assert r.returncode == code, (r.returncode, r.stderr[-2000:])
+    assert "Traceback" not in r.stderr and len(err.splitlines()) == 1, r.stderr[-2000:]
+    return err
+
+
+# ------------------------------------------------------------------------- 1: a save is never cut
+SAVE_CHILD = textwrap.dedent("""
+    import os, signal, sys, torch
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.trainer import Trainer
+    tr = Trainer(TrainConfig(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), out=sys.argv[1]))
+    real_save = torch.save
+    def save_and_interrupt(obj, f, *a, **k):  # Ctrl-C lands in the middle of the write
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)  # twice, as a fast double Ctrl-C
+        return real_save(obj, f, *a, **k)
+    torch.save = save_and_interrupt
+    try:
+        tr.save_checkpoint()
+        print("not interrupted")
+    except KeyboardInterrupt:
+        print("interrupted after the save")
+""")
+
+
+def test_an_interrupt_inside_the_save_keeps_the_checkpoint(tmp_path):
+    r = subprocess.run([sys.executable, "-c", SAVE_CHILD, str(tmp_path / "run")], cwd=REPO, capture_output=True,
+                       text=True, timeout=120)  # fmt: skip
+    assert "interrupted after the save" in r.stdout, r.stdout + r.stderr
+    assert load_checkpoint(tmp_path / "run")["step"] == 0
+    assert not [p for p in (tmp_path / "run").iterdir() if ".tmp" in p.name]
+
+
+# ------------------------------------------------------------------------- 2: SIGTERM / SIGHUP
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig):
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "flipviz.cli", "train", "--scene", "chair", "--res", "24", "--steps", "100000",
+           "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24", "--log-every", "1", "--images-every", "0",
+           "--checkpoint-every", "0", "--no-eval-on-stop", "--out", str(out)]  # fmt: skip
+    p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+    try:
+        t_end, rrd = time.monotonic() + 180, out / "recording.rrd"
+
+        def steps_recorded() -> int:
+            try:
+                return len(rows_by_step(read_rrd(rrd).get("/curves/train/loss", []), "Scalars:scalars"))
+            except Exception:  # not there yet, or caught mid-write
+                return 0
+
+        while steps_recorded() < 5:  # training runs (the recording is flushed every 2 s)
+            assert time.monotonic() < t_end and p.poll() is None, "training did not start"
+            time.sleep(0.5)
+        p.send_signal(sig)
+        _, err = p.communicate(timeout=120)
+    finally:
+        p.kill()
+    assert p.returncode == 128 + sig, (p.returncode, err[-2000:])
+    assert "Traceback" not in err and f"flipviz: stopped by {signal.Signals(sig).name}" in err
+    step = load_checkpoint(out)["step"]
+    assert step > 0
+    steps = sorted(rows_by_step(read_rrd(out / "recording.rrd")["/curves/train/loss"], "Scalars:scalars"))
+    assert steps and steps[-1] <= step  # the recording is finalised and readable
+
+
+# ------------------------------------------------------------------------- 3: resume keeps the recording
+def test_resume_into_the_same_folder_keeps_the_earlier_recording(tmp_path):
+    out = tmp_path / "run"
+    base = ["--scene", "chair", "--res", "24", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
+            "--images-every", "0", "--log-every", "1", "--out", str(out)]  # fmt: skip
+    assert flipviz("train", *base, "--steps", "20").returncode == 0
+    first = read_rrd(out / "recording.rrd")
+    r = flipviz("train", *base, "--steps", "40", "--resume", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    again = read_rrd(out / "recording.rrd")
+    later = read_rrd(out / "recording.1.rrd")
+    assert sorted(rows_by_step(again["/curves/train/loss"], "Scalars:scalars")) == sorted(
+        rows_by_step(first["/curves/train/loss"], "Scalars:scalars")
+    )  # untouched: steps 1..20
+    assert sorted(rows_by_step(later["/curves/train/loss"], "Scalars:scalars"))[-1] == 40
+    assert load_checkpoint(out)["step"] == 40
+
+
+# ------------------------------------------------------------------------- 4: one run per folder
+def test_a_second_run_on_the_same_folder_is_refused(tmp_path):
+    first = Trainer(TrainConfig(**TINY, out=tmp_path / "run"))
+    with pytest.raises(UserError, match="in use by flipviz pid"):
+        Trainer(TrainConfig(**TINY, out=tmp_path / "run"))
+    first.cfg.steps = 2
+    first.run()  # the folder is free again once the run ends
+    Trainer(TrainConfig(**TINY, out=tmp_path / "run"))
+
+
+# ------------------------------------------------------------------------- 5: a full disk
+def test_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
+    tr = Trainer(TrainConfig(**TINY, steps=30, checkpoint_every=10, out=tmp_path / "run"))
+    real_save, calls = torch.save, []
+
+    def save_until_full(obj, f, *a, **k):  # the disk fills up after the first checkpoint
+        calls.append(f)
+        if len(calls) > 1:
+            Path(f).write_bytes(b"partial")
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_save(obj, f, *a, **k)
+
+    monkeypatch.setattr(torch, "save", save_until_full)
+    m = tr.run()
+    assert m["status"] == "error" and "No space left on device" in m["message"] and "\n" not in m["message"]
+    assert load_checkpoint(tmp_path / "run")["step"] == 10  # the last good one
+    assert not [p for p in (tmp_path / "run").iterdir() if ".tmp" in p.name]
+
+
+# ------------------------------------------------------------------------- 6: poses that are not rotations
+def test_a_zero_transform_matrix_is_refused(tmp_path):
+    from flipviz.data.blender import load_blender
+
+    (tmp_path / "test").mkdir()
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "test" / "r_0.png"), np.zeros((8, 8, 4), np.uint8))
+    doc = {"camera_angle_x": 0.69, "frames": [{"file_path": "./test/r_0", "transform_matrix": [[0.0] * 4] * 4}]}
+    (tmp_path / "transforms_test.json").write_text(json.dumps(doc))
+    with pytest.raises(UserError, match="not a rotation"):
+        load_blender(tmp_path)
+    for bad, what in (({"camera_angle_x": 0.69, "frames": {"a": 1}}, "not a list"), ([1, 2], "top level is a JSON list")):
+        (tmp_path / "transforms_test.json").write_text(json.dumps(bad))
+        with pytest.raises(UserError, match=what):
+            load_blender(tmp_path)
+
+
+def test_a_run_whose_model_is_not_finite_never_reports_success(tmp_path):
+    tr = Trainer(TrainConfig(**TINY, steps=3, out=tmp_path / "run"))
+
+    class Poison:
+        def on_step(self, e):
+            if e.step == 2:
+                with torch.no_grad():
+                    tr.refiner.xi.fill_(float("nan"))
+
+        on_setup = on_images = on_end = lambda self, e: None
+
+    tr.cfg.log_every = 1
+    tr.add_observer(Poison())
+    m = tr.run()
+    assert m["status"] == "nan" and "psnr" not in m
+
+
+# ------------------------------------------------------------------------- 7, 8, 9: one line for bad input
+BAD = [
+    (["--device", "cuda"], "CUDA"), (["--device", "tpu"], "tpu"), (["--batch-rays", "-3"], "--batch-rays"),
+    (["--log-every", "0"], "--log-every"), (["--steps", "0"], "--steps"), (["--steps", "-5"], "--steps"),
+    (["--res", "5"], "--res"), (["--res", "4000"], "--res"), (["--batch-rays", "0"], "--batch-rays"),
+    (["--n-samples", "0"], "--n-samples"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("args, says", BAD)
+def test_bad_numbers_and_devices_are_one_line(tmp_path, capsys, args, says):
+    code = cli.main(["train", "--scene", "chair", "--res", "24", "--out", str(tmp_path / "run"), *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and says in err, err
+    assert not (tmp_path / "run").exists()  # nothing written for a refused run
+
+
+def test_bad_resume_checkpoints_are_one_line(tmp_path, capsys):
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"\x00not a checkpoint")
+    other = tmp_path / "other"
+    Trainer(TrainConfig(**TINY, method="bl", steps=2, out=other)).run()
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes((other / "checkpoint.pt").read_bytes()[:1000])
+    for path, says in ((tmp_path / "missing", "no checkpoint"), (garbage, "not a readable"),
+                       (truncated, "not a readable"), (other, "a method 'bl' run")):  # fmt: skip
+        code = cli.main(["train", *sum(([f"--{k.replace('_', '-')}", str(v)] for k, v in TINY.items() if k != "grid_res"), []),
+                         "--grid-res", "24", "--resume", str(path), "--out", str(tmp_path / "new")])  # fmt: skip
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and says in err, (path, err)
+
+
+def test_unwritable_run_folder_and_recording_are_one_line(tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    base = ["train", "--scene", "chair", "--res", "24", "--steps", "2", "--images-every", "0"]
+    assert cli.main([*base, "--out", str(blocker / "run")]) == 2
+    assert "cannot write" in capsys.readouterr().err
+    assert cli.main([*base, "--out", str(tmp_path / "run"), "--rrd", str(tmp_path)]) == 2  # a directory
+    err = capsys.readouterr().err.strip()
+    assert "cannot write the recording" in err and len(err.splitlines()) == 1
+    assert cli.main(["export-scene", "chair", str(blocker / "x"), "--res", "16"]) == 2
+    assert "cannot write" in capsys.readouterr().err
