@@ -281,3 +281,20 @@ def test_restart_with_another_method(app):
     old = app.setup
     run(go())
     assert app.setup is not old and app.cfg.method == "bl" and app.restarts == 1
+
+
+def test_degenerate_client_cameras_are_survived(app, capfd):
+    """fov = 0 or a 1 x 100 canvas (issue: renders that raise, or hold the trainer for seconds)."""
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0), fov=0.0)
+            await asyncio.sleep(1.0)
+            n = len(c.messages)
+            await c.send_camera((4.0, -4.0, 3.0), size=(100, 1))  # 1 px wide, 100 px high
+            bg = await c.wait_for(lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"], start=n)
+            h, w = jpeg(bg["rgb_data"]).shape[:2]
+            assert w * h <= 128 * 128 * 4 and h / w <= 4.01  # bounded size and aspect
+
+    run(go())
+    assert "Traceback" not in capfd.readouterr().err

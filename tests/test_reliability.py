@@ -233,3 +233,99 @@ def test_unwritable_run_folder_and_recording_are_one_line(tmp_path, capsys):
     assert "cannot write the recording" in err and len(err.splitlines()) == 1
     assert cli.main(["export-scene", "chair", str(blocker / "x"), "--res", "16"]) == 2
     assert "cannot write" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------- 10: Ctrl-C on the bench
+def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
+    out = tmp_path / "bench"
+    cmd = [sys.executable, "-m", "flipviz.cli", "bench", "--scenes", "chair", "--methods", "bl,flip", "--configs", "1-4",
+           "--res", "24", "--steps", "400", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
+           "--out", str(out), "--quiet"]  # fmt: skip
+    p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+    try:
+        t_end = time.monotonic() + 240
+        while not list(out.glob("runs/*/started.json")):
+            assert time.monotonic() < t_end and p.poll() is None, "the bench did not start a run"
+            time.sleep(0.3)
+        time.sleep(2.0)
+        os.killpg(p.pid, signal.SIGINT)  # as a terminal sends Ctrl-C: to the whole process group
+        t0 = time.monotonic()
+        _, err = p.communicate(timeout=120)
+        stopped_in = time.monotonic() - t0
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 130, err[-3000:]
+    assert stopped_in < 30 and "run the same command again to resume" in err
+    results = list(out.glob("runs/*/result.json"))
+    assert len(results) < 8  # it did not go on with the queued runs
+    r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert len(list(out.glob("runs/*/result.json"))) == 8
+    assert all(json.loads(f.read_text())["status"] == "ok" for f in out.glob("runs/*/result.json"))
+
+
+# ------------------------------------------------------------------------- 11: the app
+@pytest.mark.parametrize("args, says", [
+    (["--host", "10.99.99.99"], "cannot serve"), (["--device", "cuda"], "CUDA"), (["--resume", "/nonexistent"], "no checkpoint"),
+])  # fmt: skip
+def test_app_refuses_bad_input_before_serving(tmp_path, capsys, args, says):
+    code = cli.main(["app", "--scene", "chair", "--res", "24", "--port", "0", "--no-rrd", "--out", str(tmp_path / "r"), *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and says in err, err
+
+
+def start_app(tmp_path, *extra: str) -> subprocess.Popen:
+    cmd = [sys.executable, "app.py", "--scene", "chair", "--res", "24", "--port", "0", "--no-rrd", "--steps", "100000",
+           "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24", "--out", str(tmp_path / "app"), *extra]  # fmt: skip
+    return subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+
+
+def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
+    p = start_app(tmp_path)
+    try:
+        for line in p.stdout:
+            if "app running at" in line:
+                break
+        time.sleep(6.0)  # training runs
+        p.send_signal(signal.SIGINT)
+        time.sleep(0.05)
+        p.send_signal(signal.SIGINT)  # impatient
+        out, _ = p.communicate(timeout=120)
+    finally:
+        p.kill()
+    assert p.returncode == 130, out[-3000:]
+    assert "terminate called" not in out and "Traceback" not in out
+    assert load_checkpoint(tmp_path / "app")["step"] > 0
+
+
+def test_app_ctrl_c_during_setup_is_quick(tmp_path):
+    p = start_app(tmp_path)
+    try:
+        for line in p.stdout:
+            if "app running at" in line:
+                break
+        p.send_signal(signal.SIGINT)  # the trainer may still be loading its scene
+        t0 = time.monotonic()
+        out, _ = p.communicate(timeout=60)
+    finally:
+        p.kill()
+    assert p.returncode == 130 and time.monotonic() - t0 < 15, out[-3000:]
+
+
+def test_res_wider_than_the_data_is_refused(tmp_path):
+    import cv2
+
+    from flipviz.data.blender import load_blender
+    from flipviz.data.cameras import look_at
+
+    (tmp_path / "test").mkdir()
+    cv2.imwrite(str(tmp_path / "test" / "r_0.png"), np.full((8, 8, 4), 255, np.uint8))
+    doc = {"camera_angle_x": 0.69, "frames": [{"file_path": "./test/r_0", "transform_matrix": look_at(
+        np.array([0.0, 4.0, 1.0]), np.zeros(3)).tolist()}]}  # fmt: skip
+    (tmp_path / "transforms_test.json").write_text(json.dumps(doc))
+    assert load_blender(tmp_path, res=8).resolution == (8, 8)
+    with pytest.raises(UserError, match="does not upscale"):
+        load_blender(tmp_path, res=16)

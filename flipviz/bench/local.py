@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -17,11 +18,26 @@ from flipviz.bench.task import RunTask, died_result, execute_run
 _SLOT = 0
 
 
+_RUNNING = False  # a run is under way in this worker
+
+
+def _stop_training(signum: int, frame) -> None:
+    if not _RUNNING:  # idle: nothing to save
+        os._exit(0)
+    raise KeyboardInterrupt  # the run in this worker stops gracefully: checkpoint kept, resumable
+
+
 def _init_worker(threads: int, slots) -> None:
-    """Pool initializer: thread share, progress row, and exit when the bench process dies."""
+    """Pool initializer: thread share, progress row, and exit when the bench process dies.
+
+    A worker ignores Ctrl-C (the terminal sends it to the whole process group) and stops its run on
+    SIGTERM, which the bench sends to every worker when it is interrupted.
+    """
     global _SLOT
     import torch
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _stop_training)
     torch.set_num_threads(max(1, threads))
     _SLOT = slots.get()
     parent = os.getppid()
@@ -36,8 +52,13 @@ def _init_worker(threads: int, slots) -> None:
 
 
 def _run_in_worker(task: RunTask) -> dict:
+    global _RUNNING
     task.slot = _SLOT
-    return execute_run(task)
+    _RUNNING = True
+    try:
+        return execute_run(task)
+    finally:
+        _RUNNING = False
 
 
 def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], None]) -> None:
@@ -67,6 +88,14 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
                         on_result(f.result())
                     except BrokenProcessPool:
                         broken.append(futures[f])
+        except KeyboardInterrupt:  # stop the runs under way (they keep their checkpoints), start no more
+            for f in futures:
+                f.cancel()
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                if proc.is_alive():
+                    os.kill(proc.pid, signal.SIGTERM)
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
         finally:
             pool.shutdown(wait=not broken, cancel_futures=True)
         todo = []

@@ -196,6 +196,12 @@ def run_bench(cfg: BenchConfig) -> Path:
                 run_ray(tasks, cfg.address, cpus_per_run=threads, gpus_per_run=gpus, on_result=on_result)
             else:
                 run_local(tasks, cfg.workers, on_result)
+        except KeyboardInterrupt:
+            bar.close()
+            n_ok = sum(r.get("status") == "ok" for r in results.values())
+            log(f"interrupted: {n_ok} of {len(specs)} runs done; run the same command again to resume (finished "
+                "runs are skipped, interrupted ones continue from their checkpoints)", logfile)  # fmt: skip
+            raise
         finally:
             bar.close()
 

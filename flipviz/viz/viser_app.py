@@ -14,6 +14,9 @@ cameras, snap to view), viser_mirror (the symmetry lesson), viser_scene (the run
 from __future__ import annotations
 
 import logging
+import os
+import signal
+import sys
 import threading
 import time
 import webbrowser
@@ -27,6 +30,8 @@ from flipviz.data import SceneData, load_scene
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.data.protocol import make_split
+from flipviz.errors import UserError
+from flipviz.files import signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
@@ -41,6 +46,20 @@ from flipviz.viz.viser_scene import GROUPS, RunScene
 from flipviz.viz.viser_train import RunChoice, TrainPanel
 
 log = logging.getLogger("flipviz.app")
+
+
+class OneLineErrors(logging.Filter):
+    """A client's malformed websocket message closes that connection with one log line, not a traceback."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and record.exc_info[1] is not None:
+            e = record.exc_info[1]
+            record.msg, record.args = f"{record.getMessage()}: {type(e).__name__}: {e}".splitlines()[0], ()
+            record.exc_info, record.exc_text = None, None
+        return True
+
+
+logging.getLogger("websockets.server").addFilter(OneLineErrors())
 
 
 @dataclass
@@ -73,10 +92,28 @@ def _scene_key(cfg: TrainConfig) -> tuple:
     return (cfg.scene, str(cfg.data) if cfg.data is not None else None, cfg.res)
 
 
+def check_host(host: str, port: int) -> None:
+    """The address can be served on (viser moves on to the next free port, but not to another host)."""
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as e:
+        raise UserError(f"--host {host!r} is not an address of this machine ({e.strerror})") from None
+    family, _, _, _, addr = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((addr[0], 0))  # any port: only the host is checked here
+        except OSError as e:
+            raise UserError(f"cannot serve on --host {host!r}: {e.strerror}") from None
+
+
 def check_run_input(cfg: TrainConfig) -> SceneData:
     """Check the settings, load the scene and build its mirror plane, and check a --resume checkpoint,
     all before serving: bad input fails in one line, at once."""
     cfg.validate()
+    if isinstance(cfg, AppConfig):
+        check_host(cfg.host, cfg.port)
     if cfg.resume is not None:
         from flipviz.training.checkpoint import load_checkpoint
 
@@ -245,15 +282,21 @@ class App(Observer):
             self.preview.request()
 
     def _stop_run(self) -> None:
-        """Stop the trainer thread and wait for it (the trainer saves its checkpoint)."""
+        """Stop the trainer thread and wait for it (the trainer saves its checkpoint). A trainer
+        still being built (loading, ray casting) is not waited for: it has nothing to save, will not
+        start, and its daemon thread ends with the app."""
         with self._trainer_lock:
             self._gen += 1  # a trainer still being built will not start
             trainer = self.trainer
         if trainer is not None:
             trainer.stop()
-        if self._thread is not None:
-            self._thread.join()
+            if self._thread is not None:
+                self._thread.join()
         self.trainer = None
+
+    def building(self) -> bool:
+        """A trainer is still being built (scene loading, ray casting) in the training thread."""
+        return self.trainer is None and self._thread is not None and self._thread.is_alive()
 
     def restart_with(self, choice: RunChoice) -> None:
         """Restart with the Train tab's choice of scene (or data folder), method, configuration, steps."""
@@ -399,14 +442,22 @@ def run_app(cfg: AppConfig) -> None:
     """Serve the app and train until Ctrl-C (training keeps being served after it finishes)."""
     logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
     app = App(cfg, scene=check_run_input(cfg)).start()
+    if app.port != cfg.port:
+        print(f"[flipviz] port {cfg.port} is busy or not allowed; serving on port {app.port}", flush=True)
     print(f"[flipviz] app running at {app.url}  (Ctrl-C to stop)", flush=True)
     if cfg.open_browser:
         webbrowser.open(app.url)
+    stopped_by = signal.SIGINT
     try:
         while True:
             time.sleep(0.5)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM / SIGHUP raised as one by the CLI
+        stopped_by = signal.Signals[str(e)] if str(e) in signal.Signals.__members__ else signal.SIGINT
         print("[flipviz] stopping: saving the checkpoint and the recording...", flush=True)
     finally:
-        app.stop()
+        with signals_deferred():  # a second Ctrl-C waits until the checkpoint and recording are written
+            app.stop()
         print("[flipviz] stopped.", flush=True)
+        if app.building():  # a trainer still loading its scene has nothing to save: do not wait for it
+            sys.stdout.flush(), sys.stderr.flush()
+            os._exit(128 + stopped_by)

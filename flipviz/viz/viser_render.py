@@ -290,6 +290,8 @@ class ViewportRenderer:
             cw, ch = max(int(cam.image_width), 1), max(int(cam.image_height), 1)
         except AssertionError:  # no camera message yet
             return None
+        if not 0.01 < fov < 3.1:  # a degenerate field of view from a client: nothing to render
+            return None
         aspect = min(max(cw / ch, MIN_ASPECT), MAX_ASPECT)
         widths = self.passes(view, cw)
         width = widths[min(pass_idx, len(widths) - 1)]
