@@ -80,17 +80,21 @@ class Camera:
 
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """World-space ray origins and unit directions, (H*W, 3) float32 each, row-major pixels."""
-        d_cam = pixel_directions(self.width, self.height, self.focal)
-        d = d_cam @ self.c2w[:3, :3].T
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        o = np.broadcast_to(self.c2w[:3, 3], d.shape)
-        return o.astype(np.float32), d.astype(np.float32)
+        d = pixel_directions(self.width, self.height, self.focal) @ self.c2w[:3, :3].T.astype(np.float32)
+        d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+        o = np.repeat(self.c2w[None, :3, 3].astype(np.float32), len(d), axis=0)
+        return o, d
 
 
 def pixel_directions(width: int, height: int, focal: float) -> np.ndarray:
-    """Camera-frame (unnormalised, z = -1) ray directions through pixel centres, (H*W, 3)."""
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64), indexing="xy")
-    d = np.stack([(u + 0.5 - width / 2.0) / focal, -(v + 0.5 - height / 2.0) / focal, -np.ones_like(u)], -1)
+    """Camera-frame (unnormalised, z = -1) ray directions through pixel centres, (H*W, 3) float32.
+
+    x and y are exact negatives for mirror-image pixels (u and W-1-u), so image flips stay exact.
+    """
+    d = np.empty((height, width, 3), np.float32)
+    d[..., 0] = ((np.arange(width) + 0.5 - width / 2.0) / focal)[None, :]
+    d[..., 1] = (-(np.arange(height) + 0.5 - height / 2.0) / focal)[:, None]
+    d[..., 2] = -1.0
     return d.reshape(-1, 3)
 
 

@@ -103,14 +103,20 @@ class RadianceModel(nn.Module):
         }
 
     @torch.no_grad()
-    def point_cloud(self, min_alpha: float = 0.05, max_points: int = 150_000, chunk: int = 65536) -> dict[str, np.ndarray]:
-        """The field as coloured points, for a live 3D preview (paper-independent; no rendering).
+    def point_cloud(
+        self, min_alpha: float = 0.05, max_points: int = 150_000, faint_alpha: float = 0.005, max_faint: int = 30_000,
+        chunk: int = 65536,
+    ) -> dict[str, np.ndarray]:  # fmt: skip
+        """The field as coloured points, for a live 3D preview.
 
-        Points are the lattice cells (the grid's own voxels; 48^3 for the MLP) whose opacity over
-        one cell, alpha = 1 - exp(-sigma * cell), exceeds `min_alpha`, the `max_points` most opaque
-        of them. Returns points (P, 3), rgb (P, 3) (mean over four horizontal view directions),
-        alpha (P,), density (P,), beta2 (P,) = beta_min^2 + softplus(raw) per point (with a beta
-        head), and cell: the cell size.
+        Points are lattice cells (the grid's own voxels; 48^3 for the MLP) with their opacity over
+        one cell, alpha = 1 - exp(-sigma * cell). `solid` cells (alpha > min_alpha, the `max_points`
+        most opaque) carry rgb (mean over four horizontal view directions). With a beta head, the
+        faint cells (faint_alpha < alpha <= min_alpha) whose per-cell variance is highest are added
+        too (`max_faint` of them): a faint structure the model keeps uncertain, such as the ghost
+        of a mirrored handle, is where beta^2 lights up. Returns points (P, 3), rgb (P, 3),
+        alpha (P,), solid (P,) bool, beta2 (P,) = beta_min^2 + softplus(raw) (with a beta head),
+        and cell: the cell size.
         """
         Z, Y, X = self.field.lattice_shape()
         lo, hi = self.bbox[0], self.bbox[1]
@@ -120,11 +126,31 @@ class RadianceModel(nn.Module):
         cell = float(((hi - lo) / torch.tensor([X - 1, Y - 1, Z - 1], device=self.device)).max())
         sigma = torch.cat([self.field.density(pts[i : i + chunk]) for i in range(0, len(pts), chunk)])
         alpha = 1.0 - torch.exp(-sigma * cell)
-        keep = torch.nonzero(alpha > min_alpha).squeeze(-1)
-        if keep.numel() > max_points:
-            keep = keep[torch.topk(alpha[keep], max_points).indices]
-        p = pts[keep]
+        solid = torch.nonzero(alpha > min_alpha).squeeze(-1)
+        if solid.numel() > max_points:
+            solid = solid[torch.topk(alpha[solid], max_points).indices]
         dirs = torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, -1.0, 0]], device=self.device)
+        rgb, raw = self._colour(pts[solid], dirs, chunk)
+        keep, solid_flag = solid, torch.ones(len(solid), dtype=torch.bool, device=self.device)
+        if self.with_beta and max_faint > 0:
+            faint = torch.nonzero((alpha > faint_alpha) & (alpha <= min_alpha)).squeeze(-1)
+            if len(faint) > 3 * max_faint:  # a random share keeps the bake fast; the structure shows
+                pick = torch.randperm(len(faint), generator=torch.Generator().manual_seed(0))[: 3 * max_faint]
+                faint = faint[pick.to(faint.device)]
+            f_rgb, f_raw = self._colour(pts[faint], dirs[:1], chunk)  # one direction: a cheap first look
+            top = torch.topk(f_raw, min(max_faint, len(faint))).indices
+            keep = torch.cat([solid, faint[top]])
+            rgb, raw = torch.cat([rgb, f_rgb[top]]), torch.cat([raw, f_raw[top]])
+            solid_flag = torch.cat([solid_flag, torch.zeros(len(top), dtype=torch.bool, device=self.device)])
+        out = {"points": pts[keep], "rgb": rgb, "alpha": alpha[keep], "solid": solid_flag}
+        if self.with_beta:
+            out["beta2"] = self.cfg.beta_min**2 + torch.nn.functional.softplus(raw)
+        res = {k: v.cpu().numpy() if v.dtype == torch.bool else v.float().cpu().numpy() for k, v in out.items()}
+        res["cell"] = np.float32(cell)
+        return res
+
+    def _colour(self, p: Tensor, dirs: Tensor, chunk: int) -> tuple[Tensor, Tensor]:
+        """rgb (P, 3) and beta raw (P,) of points p, averaged over the view directions `dirs`."""
         rgb = torch.zeros(len(p), 3, device=self.device)
         raw = torch.zeros(len(p), device=self.device)
         for d in dirs:
@@ -133,12 +159,7 @@ class RadianceModel(nn.Module):
                 rgb[i : i + chunk] += c / len(dirs)
                 if r is not None:
                     raw[i : i + chunk] += r / len(dirs)
-        out = {"points": p, "rgb": rgb, "alpha": alpha[keep], "density": sigma[keep]}
-        if self.with_beta:
-            out["beta2"] = self.cfg.beta_min**2 + torch.nn.functional.softplus(raw)
-        res = {k: v.float().cpu().numpy() for k, v in out.items()}
-        res["cell"] = np.float32(cell)
-        return res
+        return rgb, raw
 
     # --- optimisation --------------------------------------------------------------------
     def make_optimizer(self) -> torch.optim.Optimizer:

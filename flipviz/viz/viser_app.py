@@ -75,8 +75,8 @@ class AppConfig(TrainConfig):
     """Address to bind; 127.0.0.1 keeps the app local to this machine."""
     open_browser: bool = False
     """Open the app in the default web browser."""
-    view_width: int = 1024
-    """Default "max resolution" (pixels, width) of the render of your own still view."""
+    view_width: int = 800
+    """Default "max resolution" (pixels, width) of the render of your own still view (up to 1920 in the GUI)."""
     render_duty: float = 0.25
     """At most this fraction of wall time goes to browser renders (they share the trainer's lock)."""
     keep_restart_checkpoints: bool = False

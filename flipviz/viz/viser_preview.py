@@ -19,7 +19,7 @@ import viser
 
 from flipviz.data.images import to_uint8
 from flipviz.viz import palette
-from flipviz.viz.viser_render import RenderWorker
+from flipviz.viz.viser_render import BACKGROUND, RenderWorker
 
 COLOURS = ("RGB", "opacity", "beta^2")
 
@@ -27,7 +27,7 @@ COLOURS = ("RGB", "opacity", "beta^2")
 class LivePreview:
     def __init__(
         self, server: viser.ViserServer, worker: RenderWorker, bake: Callable[[], dict | None],
-        is_training: Callable[[], bool], step: Callable[[], int], period_s: float = 4.0,
+        is_training: Callable[[], bool], step: Callable[[], int], period_s: float = 5.0,
     ) -> None:  # fmt: skip
         self.server, self.worker, self.bake_fn, self.is_training, self.step = server, worker, bake, is_training, step
         self.period_s = period_s
@@ -51,7 +51,7 @@ class LivePreview:
 
     # ---- baking -----------------------------------------------------------------------------
     def request(self, delay: float = 0.0) -> None:
-        self.worker.submit("preview-bake", self._bake, priority=2, delay=delay)
+        self.worker.submit("preview-bake", self._bake, priority=BACKGROUND, delay=delay)
 
     def _bake(self) -> None:
         if self.on:
@@ -73,14 +73,20 @@ class LivePreview:
         self.handles.clear()
 
     # ---- drawing ----------------------------------------------------------------------------
-    def colours(self, baked: dict) -> tuple[np.ndarray, tuple[float, float, str] | None]:
-        """(P, 3) uint8 colours of the points for the chosen colouring, and its scale."""
+    def shown(self, baked: dict) -> tuple[np.ndarray, np.ndarray, tuple[float, float, str] | None]:
+        """The points to draw for the chosen colouring, their uint8 colours (P, 3), and the scale.
+
+        RGB and opacity show the solid cells; beta^2 adds the faint cells the model is most unsure
+        of, on a log scale from beta_min^2 up (per-cell variances span decades)."""
         which = self.colour.value
-        if which == "opacity":
-            return palette.colormap(baked["alpha"], 0.0, 1.0), (0.0, 1.0, "opacity of one cell")
+        solid = baked["solid"]
         if which == "beta^2" and "beta2" in baked:
-            return palette.colormap(baked["beta2"], *palette.BETA2_RANGE), (*palette.BETA2_RANGE, "beta^2")
-        return to_uint8(baked["rgb"][:, None, :])[:, 0], None
+            lo, hi = palette.BETA2_LOG10_RANGE
+            c = palette.colormap(np.log10(baked["beta2"]), lo, hi)
+            return baked["points"], c, (lo, hi, "log10 beta^2 per cell")
+        if which == "opacity":
+            return baked["points"][solid], palette.colormap(baked["alpha"][solid], 0.0, 1.0), (0.0, 1.0, "opacity of one cell")
+        return baked["points"][solid], to_uint8(baked["rgb"][solid][:, None, :])[:, 0], None
 
     def set_visible(self, client_id: int, visible: bool) -> None:
         """Show or hide this client's cloud (the viewport renderer hides it under a still render)."""
@@ -100,7 +106,7 @@ class LivePreview:
     def _apply_all(self) -> None:
         with self._lock:
             baked = self.baked
-        bar = self.colours(baked)[1] if baked is not None else None
+        bar = self.shown(baked)[2] if baked is not None else None
         self.colorbar.visible = bar is not None and self.on
         if bar is not None:
             self.colorbar.image = palette.colorbar(*bar)
@@ -121,9 +127,9 @@ class LivePreview:
             scene.remove_by_name("/preview3d")
             self.handles.pop(client_id, None)
             return
-        colours, _ = self.colours(baked)
+        points, colours, _ = self.shown(baked)
         self.handles[client_id] = scene.add_point_cloud(
-            "/preview3d", baked["points"], colours, point_size=float(baked["cell"]) * 1.2, point_shape="square",
+            "/preview3d", points, colours, point_size=float(baked["cell"]) * 1.2, point_shape="square",
             precision="float16", visible=self.visible.get(client_id, True),
         )  # fmt: skip
 

@@ -5,7 +5,8 @@ client's own view) goes through one `RenderWorker` thread. `trainer.render` shar
 lock with the training step, so the worker is duty-cycled: after a render that took t seconds
 it idles t (1 - duty) / duty seconds, so renders hold the lock at most a `duty` fraction of the
 wall time. Jobs are keyed (a newer job replaces a pending one with the same key), user requests
-(priority 0) go before viewport refreshes (priority 1).
+(priority 0) go before viewport renders (1) and background work (2: preview bakes, refreshes);
+background work keeps its share of the duty cycle without delaying what a user waits for.
 
 `ViewportRenderer` renders each client's browser camera as its background, at the canvas's
 aspect ratio: nothing (the live 3D preview shows) or a coarse image while the camera moves, then,
@@ -42,6 +43,9 @@ from flipviz.viz.viser_common import (
 )
 
 
+BACKGROUND = 2  # priority of periodic work nobody waits for (preview bakes, refreshes of a still view)
+
+
 @dataclass
 class _Job:
     priority: int
@@ -60,6 +64,8 @@ class RenderWorker:
         self._seq = 0
         self._stop = False
         self.busy_s = 0.0  # total seconds spent in jobs
+        self._last_priority = 0
+        self._background_at = 0.0  # background jobs wait until then (their share of the duty cycle)
         self.jobs_done = 0
         self._thread = threading.Thread(target=self._loop, name="flipviz-render", daemon=True)
         self._thread.start()
@@ -92,9 +98,13 @@ class RenderWorker:
         with self._cv:
             while not self._stop:
                 now = time.monotonic()
-                ready = [(j.priority, j.not_before, j.seq, k) for k, j in self._jobs.items() if j.not_before <= now]
+                ready = [
+                    (j.priority, j.not_before, j.seq, k) for k, j in self._jobs.items()
+                    if j.not_before <= now and (j.priority < BACKGROUND or now >= self._background_at)
+                ]  # fmt: skip
                 if ready:
-                    key = min(ready)[3]
+                    prio, _, _, key = min(ready)
+                    self._last_priority = prio
                     return self._jobs.pop(key).fn
                 wait = min((j.not_before for j in self._jobs.values()), default=now + 1.0) - now
                 self._cv.wait(timeout=max(0.005, min(wait, 1.0)))
@@ -114,6 +124,9 @@ class RenderWorker:
             self.busy_s += dt
             self.jobs_done += 1
             idle = dt * (1.0 - self.duty) / self.duty
+            if self._last_priority >= BACKGROUND:  # background work pays its idle time before the
+                self._background_at = time.monotonic() + idle  # next background job, not before yours
+                continue
             with self._cv:
                 self._cv.wait_for(lambda: self._stop, timeout=idle)
 
@@ -145,7 +158,7 @@ class ClientView:
     client: viser.ClientHandle
     enabled: bool = True
     output: str = "RGB"
-    max_width: int = 1024
+    max_width: int = 800
     per_frame: bool = False
     snap_layer: str = "blend"
     blend: float = 1.0  # 0: the reference image, 1: the render
@@ -170,7 +183,7 @@ class ViewportRenderer:
         is_training: Callable[[], bool],
         preview_shown: Callable[[], bool] = lambda: False,
         depth_range: Callable[[], tuple[float, float]] = lambda: (2.0, 6.0),
-        max_width: int = 1024,
+        max_width: int = 800,
         settle_s: float = 0.25,
         refresh_s: float = 5.0,
         on_unsnap: Callable[[], None] = lambda: None,
@@ -336,7 +349,8 @@ class ViewportRenderer:
             self.worker.submit(("view", client_id), lambda: self._render(client_id, version, pass_idx + 1), priority=1)
         elif self.is_training():  # keep the still view up to date with training
             self.worker.submit(
-                ("view", client_id), lambda: self._render(client_id, version, pass_idx), priority=2, delay=self.refresh_s
+                ("view", client_id), lambda: self._render(client_id, version, pass_idx), priority=BACKGROUND,
+                delay=self.refresh_s,
             )
 
     def _compose(self, view: ClientView, cam: Camera, out: dict) -> tuple[np.ndarray, tuple | None]:
