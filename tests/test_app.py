@@ -281,6 +281,9 @@ def test_restart_with_another_method(app):
     old = app.setup
     run(go())
     assert app.setup is not old and app.cfg.method == "bl" and app.restarts == 1
+    first, second = app.run_dirs[-2], app.run_dirs[-1]  # beside each other, never nested
+    assert second.parent == first.parent and second.name == f"{first.name}-restart1"
+    assert not (first / "checkpoint.pt").exists()  # the replaced run's checkpoint is not kept by default
 
 
 def test_degenerate_client_cameras_are_survived(app, capfd):
@@ -298,3 +301,17 @@ def test_degenerate_client_cameras_are_survived(app, capfd):
 
     run(go())
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_a_malformed_message_is_one_log_line(app, caplog):
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.ws.send(b"\x93 not msgpack")
+            await asyncio.sleep(1.0)
+
+    with caplog.at_level("ERROR", logger="websockets.server"):
+        run(go())
+    recs = [r for r in caplog.records if r.name == "websockets.server"]
+    assert recs and all(r.exc_info is None and "\n" not in r.getMessage() for r in recs)
+    assert "DecodeError" in recs[0].getMessage()

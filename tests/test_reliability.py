@@ -277,7 +277,8 @@ def test_app_refuses_bad_input_before_serving(tmp_path, capsys, args, says):
 
 
 def start_app(tmp_path, *extra: str) -> subprocess.Popen:
-    cmd = [sys.executable, "app.py", "--scene", "chair", "--res", "24", "--port", "0", "--no-rrd", "--steps", "100000",
+    port = [] if "--port" in extra else ["--port", "0"]
+    cmd = [sys.executable, "app.py", "--scene", "chair", "--res", "24", *port, "--no-rrd", "--steps", "100000",
            "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24", "--out", str(tmp_path / "app"), *extra]  # fmt: skip
     return subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
@@ -329,3 +330,24 @@ def test_res_wider_than_the_data_is_refused(tmp_path):
     assert load_blender(tmp_path, res=8).resolution == (8, 8)
     with pytest.raises(UserError, match="does not upscale"):
         load_blender(tmp_path, res=16)
+
+
+def test_app_on_a_busy_port_says_where_it_serves(tmp_path):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        p = start_app(tmp_path, "--port", str(port))
+        try:
+            lines = []
+            for line in p.stdout:
+                lines.append(line)
+                if "app running at" in line:
+                    break
+        finally:
+            p.send_signal(signal.SIGINT)
+            p.communicate(timeout=60)
+    said = "".join(lines)
+    assert f"port {port} is busy or not allowed; serving on port" in said, said

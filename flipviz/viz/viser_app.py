@@ -442,7 +442,7 @@ def run_app(cfg: AppConfig) -> None:
     """Serve the app and train until Ctrl-C (training keeps being served after it finishes)."""
     logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
     app = App(cfg, scene=check_run_input(cfg)).start()
-    if app.port != cfg.port:
+    if cfg.port and app.port != cfg.port:
         print(f"[flipviz] port {cfg.port} is busy or not allowed; serving on port {app.port}", flush=True)
     print(f"[flipviz] app running at {app.url}  (Ctrl-C to stop)", flush=True)
     if cfg.open_browser:

@@ -191,6 +191,8 @@ class MirrorLesson:
         except Exception as e:  # e.g. a reflected centre at the sphere centre
             self.plane_text.content = f"_Cannot mirror with this plane: {e}_"
             return
+        old = self.plane
+        moved = old is None or not (np.allclose(old.point, plane.point) and np.allclose(old.normal, plane.normal))
         self.plane, self.preview_cams = plane, cams
         scene = self.server.scene
         if self.quad is not None:
@@ -215,8 +217,9 @@ class MirrorLesson:
             scene.add_line_segments(
                 "/preview/links", links, palette.CAMERA["mirror_init"], thickness=1.5, thickness_units="screen"
             )
-            for h in self.preview:
-                h.color = palette.CAMERA["mirror_init"]  # not scored for this plane yet
+            if moved:
+                for h in self.preview:
+                    h.color = palette.CAMERA["mirror_init"]  # not scored for this plane yet
         self._set_preview_visible()
         p, n = np.round(plane.point, 2) + 0.0, np.round(plane.normal, 2) + 0.0  # + 0.0: no "-0.00"
         same = self.train_plane is not None and np.allclose(plane.point, self.train_plane.point) and np.allclose(
