@@ -284,12 +284,20 @@ def start_app(tmp_path, *extra: str) -> subprocess.Popen:
                             env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
 
 
+def wait_served(p: subprocess.Popen) -> str:
+    """The app's output up to its "app running at" line."""
+    lines = []
+    for line in p.stdout:
+        lines.append(line)
+        if "app running at" in line:
+            break
+    return "".join(lines)
+
+
 def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
     p = start_app(tmp_path)
     try:
-        for line in p.stdout:
-            if "app running at" in line:
-                break
+        wait_served(p)
         time.sleep(6.0)  # training runs
         p.send_signal(signal.SIGINT)
         time.sleep(0.05)
@@ -305,9 +313,7 @@ def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
 def test_app_ctrl_c_during_setup_is_quick(tmp_path):
     p = start_app(tmp_path)
     try:
-        for line in p.stdout:
-            if "app running at" in line:
-                break
+        wait_served(p)
         p.send_signal(signal.SIGINT)  # the trainer may still be loading its scene
         t0 = time.monotonic()
         out, _ = p.communicate(timeout=60)
@@ -341,13 +347,8 @@ def test_app_on_a_busy_port_says_where_it_serves(tmp_path):
         port = busy.getsockname()[1]
         p = start_app(tmp_path, "--port", str(port))
         try:
-            lines = []
-            for line in p.stdout:
-                lines.append(line)
-                if "app running at" in line:
-                    break
+            said = wait_served(p)
         finally:
             p.send_signal(signal.SIGINT)
             p.communicate(timeout=60)
-    said = "".join(lines)
     assert f"port {port} is busy or not allowed; serving on port" in said, said
