@@ -91,7 +91,7 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
         except KeyboardInterrupt:  # stop the runs under way (they keep their checkpoints), start no more
             for f in futures:
                 f.cancel()
-            for proc in list(getattr(pool, "_processes", {}).values()):
+            for proc in list(getattr(pool, "_processes", {}).values()):  # the pool has no public list of its workers
                 if proc.is_alive():
                     os.kill(proc.pid, signal.SIGTERM)
             pool.shutdown(wait=True, cancel_futures=True)
