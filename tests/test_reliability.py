@@ -298,7 +298,11 @@ def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
     p = start_app(tmp_path)
     try:
         wait_served(p)
-        time.sleep(6.0)  # training runs
+        t_end = time.monotonic() + 180
+        while not (tmp_path / "app" / ".flipviz.lock").exists():  # the trainer is built (its scene loaded)
+            assert time.monotonic() < t_end and p.poll() is None, "training did not start"
+            time.sleep(0.2)
+        time.sleep(3.0)  # training runs
         p.send_signal(signal.SIGINT)
         time.sleep(0.05)
         p.send_signal(signal.SIGINT)  # impatient
