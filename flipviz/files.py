@@ -9,6 +9,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
+from flipviz.errors import UserError
+
 
 @contextmanager
 def atomic_path(path: Path | str) -> Iterator[Path]:
@@ -60,11 +62,12 @@ class FolderLock:
     def __init__(self, folder: Path | str) -> None:
         import fcntl
 
-        from flipviz.errors import UserError
-
         self.path = Path(folder) / self.NAME
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "a+")
+        try:  # creating the folder and its lock file is the first write: say plainly when it fails
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._f = open(self.path, "a+")
+        except OSError as e:
+            raise UserError(f"cannot write the run folder {self.path.parent}: {e.strerror or e}") from None
         try:
             fcntl.flock(self._f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:

@@ -68,14 +68,6 @@ def default_run_dir(cfg: TrainConfig) -> Path:
     return Path("runs") / f"{scene_label(cfg)}-{cfg.method}-{cfg.config}-{stamp}"
 
 
-def writable_run_dir(path: Path) -> FolderLock:
-    """Create the run folder and lock it for this process; one UserError line when it cannot be."""
-    try:
-        return FolderLock(path)
-    except OSError as e:
-        raise UserError(f"cannot write the run folder {path}: {e.strerror or e}") from None
-
-
 class Trainer:
     def __init__(self, cfg: TrainConfig, scene: SceneData | None = None) -> None:
         self.cfg = cfg.validate()
@@ -88,7 +80,7 @@ class Trainer:
         self.opt_field = self.model.make_optimizer()
         self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
         self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
-        self._lock_file = writable_run_dir(self.run_dir)  # released when run() ends
+        self._lock_file = FolderLock(self.run_dir)  # the run folder, created and ours until run() ends
         self.step = 0
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
         self._observers: list[Observer] = []

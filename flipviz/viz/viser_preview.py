@@ -34,7 +34,8 @@ class LivePreview:
         self.baked: dict | None = None
         self.visible: dict[int, bool] = {}  # client id -> cloud shown
         self.handles: dict[int, viser.PointCloudHandle] = {}
-        self.last_bake_s, self.last_bytes = 0.0, 0
+        self.last_bake_s = 0.0
+        self._drawn: tuple[np.ndarray, np.ndarray, float] | None = None  # the last bake as shown: points, colours, size
         self._lock = threading.Lock()
         gui = server.gui
         self.enabled = gui.add_checkbox("Live 3D preview", True, hint="The field as points, drawn by your browser")
@@ -68,6 +69,7 @@ class LivePreview:
     def clear(self) -> None:
         with self._lock:
             self.baked = None
+        self._drawn = None
         for cid in list(self.visible):
             self._client_scene(cid, lambda s: s.remove_by_name("/preview3d"))
         self.handles.clear()
@@ -104,15 +106,16 @@ class LivePreview:
         self.handles.pop(client_id, None)
 
     def _apply_all(self) -> None:
+        """Colour the last bake once for the chosen colouring, then send it to every client."""
         with self._lock:
             baked = self.baked
-        bar = self.shown(baked)[2] if baked is not None else None
+        points, colours, bar = self.shown(baked) if baked is not None else (None, None, None)
+        self._drawn = None if points is None else (points, colours, 1.2 * float(baked["cell"]))
         self.colorbar.visible = bar is not None and self.on
         if bar is not None:
             self.colorbar.image = palette.colorbar(*bar)
         if baked is not None:
-            n, kb = len(baked["points"]), len(baked["points"]) * 9 / 1024  # float16 xyz + uint8 rgb
-            self.last_bytes = int(kb * 1024)
+            n, kb = len(points), len(points) * 9 / 1024  # float16 xyz + uint8 rgb
             self.status.content = (
                 f"{n} points at step {baked['step']}, baked in {1000 * self.last_bake_s:.0f} ms, {kb:.0f} kB"
                 if self.on else "_Preview off._"
@@ -121,15 +124,14 @@ class LivePreview:
             self._client_scene(cid, lambda s, cid=cid: self._draw(s, cid))
 
     def _draw(self, scene: viser.SceneApi, client_id: int) -> None:
-        with self._lock:
-            baked = self.baked
-        if baked is None or not self.on:
+        drawn = self._drawn
+        if drawn is None or not self.on:
             scene.remove_by_name("/preview3d")
             self.handles.pop(client_id, None)
             return
-        points, colours, _ = self.shown(baked)
+        points, colours, size = drawn
         self.handles[client_id] = scene.add_point_cloud(
-            "/preview3d", points, colours, point_size=float(baked["cell"]) * 1.2, point_shape="square",
+            "/preview3d", points, colours, point_size=size, point_shape="square",
             precision="float16", visible=self.visible.get(client_id, True),
         )  # fmt: skip
 

@@ -166,7 +166,6 @@ class ClientView:
     version: int = 0  # bumped by every camera move: passes of an older version are dropped
     last_move: float = 0.0
     renders: int = 0
-    last_width: int = 0  # width of the last background sent
     gui: dict = field(default_factory=dict)
 
 
@@ -337,7 +336,7 @@ class ViewportRenderer:
             return
         image, bar = self._compose(view, cam, out)
         view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=self._z_depth(cam, out))
-        view.renders, view.last_width = view.renders + 1, cam.width
+        view.renders += 1
         view.gui["colorbar"].visible = bar is not None
         if bar is not None:
             view.gui["colorbar"].image = palette.colorbar(*bar)

@@ -60,7 +60,7 @@ class RunScene:
         self.history: list[list[np.ndarray]] = []
         self.scale = 0.3
         self.groups: dict[str, viser.FrameHandle] = {}
-        self.frustums: list[tuple[viser.CameraFrustumHandle, np.ndarray]] = []  # (handle, its camera centre)
+        self.frustums: list[viser.CameraFrustumHandle] = []  # every camera of the run (position: its centre)
         self.hidden: list[viser.CameraFrustumHandle] = []  # hidden around a snapped view
         self._lock = threading.Lock()
 
@@ -92,7 +92,7 @@ class RunScene:
                 k = counts.get(g, 0)
                 counts[g] = k + 1
                 h = self._add_frustum(f"/run/{g}/{k}", info, GROUPS[g][1], with_image=g != "tests")
-                self.frustums.append((h, info.camera.center))
+                self.frustums.append(h)
                 if g == "mirrors":
                     self.mirror_handles.append(h)
                     self.mirror_names.append(info.camera.name)
@@ -130,8 +130,8 @@ class RunScene:
         """Hide the frustums within `radius` of a snapped camera, and the BA trajectories, so the view is seen."""
         with self._lock:
             self._unhide()
-            for h, c in self.frustums:
-                if np.linalg.norm(c - center) < radius and h.visible:
+            for h in self.frustums:
+                if np.linalg.norm(np.asarray(h.position) - center) < radius and h.visible:
                     h.visible = False
                     self.hidden.append(h)
             if "trajectories" in self.groups:
@@ -157,7 +157,6 @@ class RunScene:
                 for h, T, hist in zip(self.mirror_handles, c2w, self.history):
                     wxyz, pos = to_viser_pose(T)
                     h.wxyz, h.position = wxyz, pos
-                    self.frustums = [(f, T[:3, 3].copy() if f is h else c) for f, c in self.frustums]
                     if np.linalg.norm(T[:3, 3] - hist[-1]) > 1e-6:
                         hist.append(T[:3, 3].copy())
                         if len(hist) > MAX_TRAJ_POINTS:
