@@ -4,6 +4,7 @@
     flipviz app --scene mug                  (same as `python app.py --scene mug`)
     flipviz bench --scenes chair,lego --data-root path/to/nerf_synthetic
     flipviz export-scene chair out/chair
+    flipviz export-scene chair-turned out/drive --trajectory driveby
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Callable
+from typing import Annotated, Callable, Literal
 
 import tyro
 
@@ -23,7 +24,8 @@ from flipviz.training.config import TrainConfig
 
 @dataclass
 class ExportScene:
-    """Write a built-in scene in the Blender format (transforms_test.json + PNGs)."""
+    """Write a built-in scene as data: its orbit in the Blender format, or a robot's drive-by capture
+    in the nerfstudio format (train on it with `flipviz train --data DIR` or `python app.py --data DIR`)."""
 
     scene: Annotated[str, tyro.conf.Positional]
     """Built-in scene name."""
@@ -31,6 +33,9 @@ class ExportScene:
     """Folder to write."""
     res: int = 100
     """Image width in pixels."""
+    trajectory: Literal["orbit", "driveby"] = "orbit"
+    """orbit: the protocol's first turn (transforms_test.json); driveby: a one-sided robot path with
+    varying height and distance, plus held-out views of the far side (transforms.json)."""
 
 
 def _run_train(cfg: TrainConfig) -> int:
@@ -82,12 +87,15 @@ def _serve_until_interrupted(url: str | None) -> None:
 
 def _export(cmd: ExportScene) -> int:
     from flipviz.data.blender import export_scene
+    from flipviz.data.driveby import export_driveby
 
+    if not 8 <= cmd.res <= 1024:
+        raise UserError(f"--res must be in 8..1024, got {cmd.res}")
     try:
-        export_scene(cmd.scene, cmd.out_dir, res=cmd.res)
+        (export_driveby if cmd.trajectory == "driveby" else export_scene)(cmd.scene, cmd.out_dir, res=cmd.res)
     except OSError as e:
         raise UserError(f"cannot write {cmd.out_dir}: {e.strerror or e}") from None
-    print(f"wrote {cmd.scene} to {cmd.out_dir}")
+    print(f"wrote {cmd.scene} ({cmd.trajectory}) to {cmd.out_dir}")
     return 0
 
 

@@ -14,47 +14,15 @@ import os
 from pathlib import Path
 from typing import Iterable
 
-import cv2
 import numpy as np
 
 from flipviz.data.cameras import Camera, View
 from flipviz.data.dataset import DatasetError, SceneData
-from flipviz.files import atomic_path, write_json
+from flipviz.data.images import composite_on_white, read_rgba, save_rgba_png, uncomposite
+from flipviz.files import write_json
 
 NEAR, FAR = 2.0, 6.0
 BBOX = np.array([[-1.5, -1.5, -1.5], [1.5, 1.5, 1.5]])
-
-
-def _read_rgba(path: Path) -> np.ndarray:
-    """Image file -> float32 (H, W, 4) RGBA in [0, 1] (alpha 1 for RGB files)."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise DatasetError(f"cannot read image {path}")
-    if img.ndim != 3 or img.shape[2] not in (3, 4):
-        shape = "grayscale" if img.ndim == 2 else f"{img.shape[2]}-channel"
-        raise DatasetError(f"image {path} is {shape}; RGB or RGBA images are required")
-    scale = float(np.iinfo(img.dtype).max) if np.issubdtype(img.dtype, np.integer) else 1.0
-    img = img.astype(np.float32) / scale
-    if img.shape[2] == 3:
-        return np.concatenate([cv2.cvtColor(img, cv2.COLOR_BGR2RGB), np.ones_like(img[..., :1])], axis=-1)
-    return cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
-
-
-def _composite(rgba: np.ndarray, width: int | None) -> tuple[np.ndarray, np.ndarray]:
-    """RGBA -> (rgb on white, alpha), optionally resized to `width` with area averaging.
-
-    Resizing is done on the alpha-premultiplied colour (c * a) and on a, then c_white = c*a + 1 - a,
-    which is exactly the area average of the composited image.
-    """
-    a = rgba[..., 3:4]
-    premult = np.concatenate([rgba[..., :3] * a, a], axis=-1)
-    H, W = rgba.shape[:2]
-    if width is not None and width != W:
-        height = max(1, round(H * width / W))
-        premult = cv2.resize(premult, (width, height), interpolation=cv2.INTER_AREA)
-    a = np.clip(premult[..., 3], 0.0, 1.0)
-    rgb = np.clip(premult[..., :3] + (1.0 - a[..., None]), 0.0, 1.0)
-    return rgb.astype(np.float32), a.astype(np.float32)
 
 
 def _image_path(root: Path, file_path: str) -> Path:
@@ -123,7 +91,7 @@ def load_blender(
         ipath = _image_path(root, file_path)
         if not ipath.is_file():
             raise DatasetError(f"image {ipath} listed in {jpath.name} not found")
-        rgba = _read_rgba(ipath)
+        rgba = read_rgba(ipath)
         if res is not None and res > rgba.shape[1]:
             raise DatasetError(f"--res {res} is wider than the images of {root} ({rgba.shape[1]} px); flipviz does not upscale")
         if size is None:
@@ -132,7 +100,7 @@ def load_blender(
             raise DatasetError(
                 f"images have inconsistent sizes: {ipath.name} is {rgba.shape[1]}x{rgba.shape[0]}, expected {size[1]}x{size[0]}"
             )
-        rgb, alpha = _composite(rgba, res)
+        rgb, alpha = composite_on_white(rgba, res)
         H, W = rgb.shape[:2]
         focal = 0.5 * W / np.tan(0.5 * angle_x)
         views[index] = View(Camera(c2w, W, H, float(focal), name=Path(file_path).name), rgb, alpha, index=index)
@@ -157,17 +125,9 @@ def write_blender(scene: SceneData, out_dir: str | os.PathLike, split: str = "te
     contiguous = idx == list(range(len(idx)))
     frames = []
     for i in idx:
-        v = scene.views[i]
-        a = np.ones(v.rgb.shape[:2], np.float32) if v.alpha is None else v.alpha
-        # un-composite: c_white = c a + 1 - a  =>  c = (c_white - 1 + a) / a where a > 0
-        c = np.where(a[..., None] > 0, (v.rgb - 1.0 + a[..., None]) / np.maximum(a[..., None], 1e-8), 0.0)
-        rgba = np.concatenate([np.clip(c, 0, 1), a[..., None]], axis=-1)
-        png = np.round(rgba * 255.0).astype(np.uint8)
         name = f"r_{i}"
-        with atomic_path(out / split / f"{name}.png") as tmp:
-            if not cv2.imwrite(str(tmp), cv2.cvtColor(png, cv2.COLOR_RGBA2BGRA)):
-                raise DatasetError(f"cannot write {out / split / name}.png")
-        frame = {"file_path": f"./{split}/{name}", "transform_matrix": v.camera.c2w.tolist()}
+        save_rgba_png(out / split / f"{name}.png", uncomposite(scene.views[i].rgb, scene.views[i].alpha))
+        frame = {"file_path": f"./{split}/{name}", "transform_matrix": scene.views[i].camera.c2w.tolist()}
         if not contiguous:
             frame["orbit_index"] = i
         frames.append(frame)

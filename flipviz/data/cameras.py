@@ -111,7 +111,39 @@ def rays_from_c2w(c2w: torch.Tensor, dirs_cam: torch.Tensor) -> tuple[torch.Tens
     return o, d
 
 
+def axes_intersection(points: np.ndarray, view_dirs: np.ndarray) -> np.ndarray | None:
+    """Least-squares point closest to all lines p_i + t d_i: argmin_q sum |(I - d d^T)(q - p_i)|^2.
+
+    Returns None when the lines are (nearly) parallel, so that no such point is determined.
+    """
+    p, d = np.asarray(points, dtype=np.float64), np.asarray(view_dirs, dtype=np.float64)
+    if p.shape != d.shape or p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"axes_intersection: {d.shape} view directions for points {p.shape}")
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]  # projectors orthogonal to each axis
+    M, b = P.sum(0), (P @ p[:, :, None]).sum(0)[:, 0]
+    s = np.linalg.svd(M, compute_uv=False)
+    if s[-1] < 1e-6 * s[0]:
+        return None
+    return np.linalg.solve(M, b)
+
+
+def looked_at_point(cameras: "list[Camera]") -> np.ndarray | None:
+    """Where a set of cameras looks: the least-squares meeting point of their optical axes."""
+    return axes_intersection(np.stack([c.center for c in cameras]), np.stack([-c.c2w[:3, 2] for c in cameras]))
+
+
 WORLD_UP = np.array([0.0, 0.0, 1.0])
+
+
+def horizontal_basis(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (u, v) orthogonal to `up`, (u, v, up) right-handed: u is the world x axis made
+    horizontal (y when x is up); azimuths about `up` are counted from u towards v."""
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    ref = np.eye(3)[0] if abs(up[0]) < 0.9 else np.eye(3)[1]
+    u = ref - (ref @ up) * up
+    u /= np.linalg.norm(u)
+    return u, np.cross(up, u)
 
 
 def unit_vector(v: np.ndarray, what: str) -> np.ndarray:

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flipviz.data.cameras import View
+from flipviz.data.cameras import WORLD_UP, View
 from flipviz.errors import UserError
 
 
@@ -52,10 +52,12 @@ class Plane:
 
 @dataclass
 class SceneData:
-    """A scene's source orbit: views keyed by orbit index, plus what is known about the scene.
+    """A scene's views keyed by index, plus what is known about the scene.
 
-    The protocol (`flipviz.data.protocol`) picks input / test / upper views from `views` by
-    orbit index, so built-in scenes and NeRF-synthetic folders are handled identically.
+    Orbit data (built-in scenes, NeRF-synthetic folders; `protocol` True): the index is the orbit
+    index and the protocol (`flipviz.data.protocol`) picks input / test / Upper views from it.
+    Captures (nerfstudio, COLMAP; `protocol` False): the index is the frame number; `splits` names
+    the capture's own train / test frames, and `data/selection.py` picks the inputs.
     """
 
     name: str
@@ -66,6 +68,11 @@ class SceneData:
     symmetry_plane: Plane | None = None  # ground-truth mirror plane, when the scene has one
     source: str = ""  # "builtin:<name>" or the folder it was read from
     meta: dict = field(default_factory=dict)
+    protocol: bool = True  # views follow the protocol's orbit indices
+    splits: dict[str, list[int]] = field(default_factory=dict)  # a capture's named frame lists ("train", "test")
+    up: np.ndarray = field(default_factory=lambda: WORLD_UP.copy())  # world up (captures: estimated from the cameras)
+    up_known: bool = True  # False when `up` is only an estimate
+    center: np.ndarray | None = None  # the object's centre, look-at target of the mirrors (None: the paper's sphere fit)
 
     @property
     def resolution(self) -> tuple[int, int]:

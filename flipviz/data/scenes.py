@@ -215,7 +215,7 @@ class SceneSpec:
         return self.symmetry_plane is not None
 
 
-SCENES: dict[str, SceneSpec] = {
+BASE_SCENES: dict[str, SceneSpec] = {
     "chair": SceneSpec(chair, Plane(np.zeros(3), np.array([1.0, 0.0, 0.0])),
                        "armchair, geometry symmetric about x = 0, colours not"),
     "truck": SceneSpec(truck, Plane(np.zeros(3), np.array([0.0, 1.0, 0.0])),
@@ -223,6 +223,35 @@ SCENES: dict[str, SceneSpec] = {
     "mug": SceneSpec(mug, None, "mug with a handle and a leaning spoon, asymmetric"),
     "lamp": SceneSpec(lamp, None, "desk lamp with a bent arm and tilted shade, asymmetric"),
 }
+
+# "<name>-turned": the object yawed and moved off the origin, so that no world axis is its plane
+# and `official` (x = 0) is wrong. The true plane moves with it and stays known for measurement.
+TURN_YAW_DEG = 35.0
+TURN_OFFSET = (0.25, -0.15, 0.05)
+
+
+def turn_transform() -> np.ndarray:
+    """The 4x4 rigid transform of the turned scenes: yaw TURN_YAW_DEG about +z, then TURN_OFFSET."""
+    T = trimesh.transformations.rotation_matrix(np.radians(TURN_YAW_DEG), (0.0, 0.0, 1.0))
+    T[:3, 3] = TURN_OFFSET
+    return T
+
+
+def _turned(spec: SceneSpec) -> SceneSpec:
+    T = turn_transform()
+
+    def build() -> trimesh.Trimesh:
+        mesh = spec.builder()
+        mesh.apply_transform(T)
+        return mesh
+
+    plane = None if spec.symmetry_plane is None else Plane(
+        T[:3, :3] @ spec.symmetry_plane.point + T[:3, 3], T[:3, :3] @ spec.symmetry_plane.normal
+    )
+    return SceneSpec(build, plane, f"{spec.description}; turned {TURN_YAW_DEG:g} deg and offset by {TURN_OFFSET}")
+
+
+SCENES: dict[str, SceneSpec] = {**BASE_SCENES, **{f"{k}-turned": _turned(v) for k, v in BASE_SCENES.items()}}
 
 
 def _spec(name: str) -> SceneSpec:

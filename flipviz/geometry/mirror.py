@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from flipviz.data.cameras import Camera, View
+from flipviz.data.cameras import WORLD_UP, Camera, View
 from flipviz.data.dataset import DatasetError, Plane
 from flipviz.geometry.poses import look_at, pose_errors, reflection_matrix
 from flipviz.geometry.sphere import Sphere, fit_camera_sphere
@@ -52,7 +52,7 @@ def project_to_sphere(p: np.ndarray, sphere: Sphere) -> np.ndarray:
 
 def parse_plane(s: str) -> Plane:
     """Parse a user plane 'px,py,pz;nx,ny,nz' (a point on it; its normal) into a Plane."""
-    usage = "expected 'px,py,pz;nx,ny,nz' (a point; a non-zero normal)"
+    usage = "expected auto, opposite, official, scene or 'px,py,pz;nx,ny,nz' (a point; a non-zero normal)"
     parts = str(s).split(";")
     if len(parts) != 2:
         raise DatasetError(f"bad mirror plane {s!r}: {usage}")
@@ -73,19 +73,22 @@ def _cameras(items: Sequence[Camera | View]) -> list[Camera]:
 
 # Paper Sec. IV-A: "the symmetric plane that intersects the center of the sphere".
 def mirror_plane(
-    preset: str, input_cameras: Sequence[Camera | View], sphere: Sphere, scene_plane: Plane | None = None
+    preset: str, input_cameras: Sequence[Camera | View], sphere: Sphere, scene_plane: Plane | None = None,
+    up: np.ndarray = WORLD_UP,
 ) -> Plane:
     """The mirror plane for a preset name or a user string 'px,py,pz;nx,ny,nz'.
 
-    opposite: vertical, through the sphere centre, normal = the mean horizontal direction from the
-              centre to the input cameras, so the observed half ring maps onto the unobserved one.
+    opposite: vertical (containing `up`), through the sphere centre, normal = the mean horizontal
+              direction from the centre to the input cameras, so the observed side maps onto the
+              unobserved one.
     official: the plane x = 0 (point (0,0,0), normal (1,0,0)), what the authors' code uses.
     scene:    the scene's true symmetry plane (error when the scene has none).
     """
     name = str(preset).strip().lower()
     if name == "opposite":
+        up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
         h = np.stack([c.center for c in _cameras(input_cameras)]) - sphere.center
-        h[:, 2] = 0.0
+        h -= (h @ up)[:, None] * up
         norms = np.linalg.norm(h, axis=1, keepdims=True)
         if np.any(norms < 1e-9):
             raise DatasetError("mirror plane 'opposite': a camera lies straight above/below the sphere centre")
@@ -100,15 +103,15 @@ def mirror_plane(
             raise DatasetError("mirror plane 'scene': this scene has no known symmetry plane")
         return scene_plane
     if ";" not in name:
-        raise DatasetError(f"unknown mirror plane {preset!r}: use {' | '.join(PRESETS)} or 'px,py,pz;nx,ny,nz'")
+        raise DatasetError(f"unknown mirror plane {preset!r}: use auto | {' | '.join(PRESETS)} or 'px,py,pz;nx,ny,nz'")
     return parse_plane(str(preset).strip())
 
 
 # Paper Sec. IV-A: reflect the centre, back onto the sphere, look at the sphere centre, up = +z.
-def initial_mirrored_camera(cam: Camera, plane: Plane, sphere: Sphere) -> Camera:
+def initial_mirrored_camera(cam: Camera, plane: Plane, sphere: Sphere, up: np.ndarray = WORLD_UP) -> Camera:
     """The paper's initial pose pi' of the flipped image of `cam` (named '<name>_flip')."""
     c = project_to_sphere(reflect_points(cam.center, plane), sphere)
-    return cam.with_pose(look_at(c, sphere.center), name=f"{cam.name}_flip")
+    return cam.with_pose(look_at(c, sphere.center, up), name=f"{cam.name}_flip")
 
 
 # Ground truth for a plane-symmetric object: R' = M R diag(-1, 1, 1), c' = reflect(c).
@@ -124,9 +127,22 @@ def exact_reflected_camera(cam: Camera, plane: Plane) -> Camera:
     return cam.with_pose(c2w, name=f"{cam.name}_flip_exact")
 
 
-def mirror_cameras_for_plane(inputs: Sequence[Camera | View], plane: Plane, sphere: Sphere) -> list[Camera]:
+def mirror_cameras_for_plane(
+    inputs: Sequence[Camera | View], plane: Plane, sphere: Sphere, up: np.ndarray = WORLD_UP
+) -> list[Camera]:
     """Initial mirrored cameras for all inputs and a given plane (the app recomputes these live)."""
-    return [initial_mirrored_camera(c, plane, sphere) for c in _cameras(inputs)]
+    return [initial_mirrored_camera(c, plane, sphere, up) for c in _cameras(inputs)]
+
+
+def camera_sphere(inputs: Sequence[Camera | View], center: np.ndarray | None = None) -> Sphere:
+    """The sphere the mirrored cameras sit on: the paper's least-squares fit through the input
+    centres, or, when the object's `center` is known from the data (captures on any trajectory,
+    where a sphere through a drive-by is meaningless), the sphere about it at the cameras' mean distance."""
+    cams = _cameras(inputs)
+    if center is None:
+        return fit_camera_sphere(cams)
+    center = np.asarray(center, dtype=np.float64)
+    return Sphere(center, float(np.mean([np.linalg.norm(c.center - center) for c in cams])))
 
 
 @dataclass
@@ -151,16 +167,24 @@ class MirrorSet:
         return [pose_errors(c.c2w, t.c2w) for c, t in zip(cams, self.true_cameras, strict=True)]
 
 
-def make_mirror_set(inputs: Sequence[View], plane_preset: str, scene_plane: Plane | None = None) -> MirrorSet:
-    """Paper Sec. IV-A end to end: sphere through the input centres, plane, flipped views, poses."""
+def make_mirror_set(
+    inputs: Sequence[View], plane_preset: str | Plane, scene_plane: Plane | None = None,
+    center: np.ndarray | None = None, up: np.ndarray = WORLD_UP,
+) -> MirrorSet:
+    """Paper Sec. IV-A end to end: sphere through the input centres, plane, flipped views, poses.
+
+    `plane_preset` is a preset name, a user string, or a Plane (e.g. one estimated from the inputs);
+    `center` and `up` come from the scene (captures: from the data; orbits: None and +z).
+    """
     if len(inputs) == 0:
         raise DatasetError("no input views to mirror")
-    sphere = fit_camera_sphere(_cameras(inputs))
-    plane = mirror_plane(plane_preset, inputs, sphere, scene_plane)
+    sphere = camera_sphere(inputs, center)
+    plane = plane_preset if isinstance(plane_preset, Plane) else mirror_plane(plane_preset, inputs, sphere, scene_plane, up)
     views = []
-    for v, cam in zip(inputs, mirror_cameras_for_plane(inputs, plane, sphere)):
+    for v, cam in zip(inputs, mirror_cameras_for_plane(inputs, plane, sphere, up)):
         alpha = None if v.alpha is None else flip_image(v.alpha)
         meta = {"mirrored": True, "source": v.name, "source_index": v.index}
         views.append(View(camera=cam, rgb=flip_image(v.rgb), alpha=alpha, index=-1, meta=meta))
     true = None if scene_plane is None else [exact_reflected_camera(v.camera, scene_plane) for v in inputs]
-    return MirrorSet(plane, sphere, views, true, meta={"preset": str(plane_preset)})
+    preset = "estimated" if isinstance(plane_preset, Plane) else str(plane_preset)
+    return MirrorSet(plane, sphere, views, true, meta={"preset": preset})

@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-from flipviz.data.cameras import Camera
+from flipviz.data.cameras import Camera, axes_intersection
 from flipviz.data.dataset import DatasetError
 
 
@@ -50,24 +50,6 @@ def _as_points(points: np.ndarray, what: str = "points") -> np.ndarray:
     if not np.all(np.isfinite(p)):
         raise DatasetError(f"sphere fit: {what} contain NaN or infinite values")
     return p
-
-
-def axes_intersection(points: np.ndarray, view_dirs: np.ndarray) -> np.ndarray | None:
-    """Least-squares point closest to all lines p_i + t d_i: argmin_q sum |(I - d d^T)(q - p_i)|^2.
-
-    Returns None when the lines are (nearly) parallel, so that no such point is determined.
-    """
-    p = _as_points(points)
-    d = _as_points(view_dirs, "view directions")
-    if d.shape != p.shape:
-        raise DatasetError(f"sphere fit: {len(d)} view directions for {len(p)} points")
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]  # projectors orthogonal to each axis
-    M, b = P.sum(0), (P @ p[:, :, None]).sum(0)[:, 0]
-    s = np.linalg.svd(M, compute_uv=False)
-    if s[-1] < 1e-6 * s[0]:
-        return None
-    return np.linalg.solve(M, b)
 
 
 def fit_sphere(points: np.ndarray, view_dirs: np.ndarray | None = None, planar_tol: float = 1e-3) -> Sphere:
@@ -109,7 +91,7 @@ def fit_sphere(points: np.ndarray, view_dirs: np.ndarray | None = None, planar_t
     circle_center = g + c[:2] @ e
     center = circle_center
     if view_dirs is not None:
-        target = axes_intersection(p, view_dirs)
+        target = axes_intersection(p, _as_points(view_dirs, "view directions"))
         if target is not None:
             center = circle_center + float(n @ (target - circle_center)) * n  # on the circle's axis
     radius = float(np.sqrt(((p - center) ** 2).sum(1).mean()))

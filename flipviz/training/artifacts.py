@@ -4,6 +4,8 @@
     <run folder>/test_renders/<view>.png and <view>_gt.png
     <run folder>/transforms.json         the refined mirrored poses, Blender format, with
     <run folder>/mirrored/<view>.png     their flipped images
+    <run folder>/plane.json              --mirror-plane auto: the estimated plane, its confidence
+                                         and scores (read back when the run is resumed)
 """
 
 from __future__ import annotations
@@ -15,6 +17,9 @@ import numpy as np
 from flipviz.data.cameras import Camera
 from flipviz.data.images import save_png
 from flipviz.files import write_json
+from flipviz.geometry.symmetry import PlaneEstimate
+
+PLANE_FILE = "plane.json"
 
 
 def write_test_renders(run_dir: Path, names: list[str], preds: list[np.ndarray], gts: list[np.ndarray]) -> None:
@@ -36,3 +41,7 @@ def write_transforms(run_dir: Path, cameras: list[Camera], images: list[np.ndarr
         frames.append({"file_path": rel, "transform_matrix": np.asarray(cam.c2w).tolist()})
     data = {"camera_angle_x": float(cameras[0].fov_x) if cameras else 0.0, "frames": frames}
     return write_json(run_dir / "transforms.json", data)
+
+
+def write_plane(run_dir: Path, estimate: PlaneEstimate) -> Path:
+    return write_json(run_dir / PLANE_FILE, estimate.to_dict())

@@ -37,7 +37,12 @@ class TrainConfig:
     scene: str = "chair"
     """Built-in scene name (ignored when --data is given)."""
     data: Path | None = None
-    """A Blender-format scene folder (transforms_test.json with the 200-view orbit)."""
+    """A scene folder: a Blender orbit (transforms_test.json, e.g. NeRF-synthetic), a nerfstudio capture
+    (transforms.json) or a COLMAP capture (images/ + sparse/0)."""
+    inputs: str = ""
+    """Protocol-free runs: the input frames, '' (a capture's train split, else all), 'all', '0,3,5-9' or
+    'az:-60..120' (azimuth range, degrees); the other frames (or the capture's test split) are evaluated.
+    Orbit scenes without it use the protocol's --config."""
     method: Method = "flip+u"
     """bl | bl+u | flip | flip+u | upper (the paper's five methods)."""
     config: int = 1
@@ -51,7 +56,8 @@ class TrainConfig:
     field: Literal["grid", "nerf"] = "grid"
     """grid: fast dense voxel grid (default); nerf: vanilla NeRF MLP, the paper's setting."""
     mirror_plane: str = "official"
-    """opposite | official | scene | 'px,py,pz;nx,ny,nz' (a point and a normal)."""
+    """auto (estimated from the inputs, with a confidence) | opposite | official (x = 0) | scene (the
+    built-in's true plane) | 'px,py,pz;nx,ny,nz' (a point and a normal)."""
     ba: bool = True
     """Bundle-adjust the mirrored poses (Flip methods)."""
     uncertainty: bool = True
@@ -104,6 +110,10 @@ class TrainConfig:
                 raise UserError(f"--{name.replace('_', '-')} must be in {lo}..{hi}, got {v!r}")
         if self.grid_res is not None and (not self.grid_res or any(not 8 <= r <= 512 for r in self.grid_res)):
             raise UserError(f"--grid-res needs resolutions in 8..512, got {self.grid_res!r}")
+        from flipviz.geometry.mirror import PRESETS, parse_plane
+
+        if self.mirror_plane.strip().lower() not in ("auto", *PRESETS):
+            parse_plane(self.mirror_plane)  # one line when it is neither a preset nor 'px,py,pz;nx,ny,nz'
         check_device(self.device)
         return self
 

@@ -15,10 +15,16 @@ import numpy as np
 
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
+from flipviz.geometry.symmetry import PlaneEstimate
 
 # mirror_init: a mirrored camera at its initial pose; mirror: at its current (BA-refined) pose;
 # mirror_true: the exact reflection through the scene's true symmetry plane.
 CameraKind = Literal["input", "mirror_init", "mirror", "mirror_true", "test", "upper"]
+
+
+def split_label(config: int) -> str:
+    """How a run's views were chosen, in words: the protocol's configuration, or the user's inputs."""
+    return f"configuration {config}" if config else "own inputs"
 
 
 @dataclass
@@ -36,7 +42,7 @@ class SetupEvent:
     run_name: str
     scene: str
     method: str
-    config: int
+    config: int  # protocol configuration 1..8; 0: protocol-free inputs (--inputs, captures)
     total_steps: int
     sphere_center: np.ndarray  # (3,) least-squares sphere through the input camera centres
     sphere_radius: float
@@ -45,6 +51,8 @@ class SetupEvent:
     cameras: list[CameraInfo]
     bbox: np.ndarray  # (2, 3)
     settings: dict = field(default_factory=dict)  # the run's config as plain data
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # the scene's up (mirrors look-at)
+    plane_estimate: PlaneEstimate | None = None  # --mirror-plane auto: the estimate and its scores
 
 
 @dataclass

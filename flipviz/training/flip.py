@@ -22,7 +22,7 @@ from __future__ import annotations
 import torch
 
 from flipviz.data.cameras import View
-from flipviz.data.dataset import Plane
+from flipviz.data.dataset import Plane, SceneData
 from flipviz.geometry.mirror import MirrorSet, make_mirror_set
 from flipviz.model.objective import Objective
 from flipviz.model.pose_refine import PoseRefiner
@@ -30,9 +30,13 @@ from flipviz.training.config import TrainConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, TrainView
 
 
-def mirrored_views(cfg: TrainConfig, inputs: list[View], scene_plane: Plane | None) -> MirrorSet:
-    """1. The flipped inputs with their initial poses, for cfg.mirror_plane (and the exact ones, when known)."""
-    return make_mirror_set(inputs, cfg.mirror_plane, scene_plane)
+def mirrored_views(cfg: TrainConfig, inputs: list[View], scene: SceneData, estimated: Plane | None = None) -> MirrorSet:
+    """1. The flipped inputs with their initial poses (and the exact ones, when the scene's plane is
+    known), for cfg.mirror_plane; for "auto", the `estimated` plane (plane_estimate.py)."""
+    plane: str | Plane = cfg.mirror_plane
+    if plane == "auto":
+        plane = estimated if estimated is not None else "opposite"  # no estimate for methods without mirrors
+    return make_mirror_set(inputs, plane, scene.symmetry_plane, scene.center, scene.up)
 
 
 def mirrored_train_views(spec: MethodSpec, mirrors: MirrorSet) -> list[TrainView]:

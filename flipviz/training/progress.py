@@ -23,7 +23,7 @@ class ProgressObserver(Observer):
         self.postfix: dict[str, str] = {}
 
     def on_setup(self, event: SetupEvent) -> None:
-        desc = f"{event.scene} {self.label or event.method} cfg{event.config}"
+        desc = f"{event.scene} {self.label or event.method} " + (f"cfg{event.config}" if event.config else "inputs")
         kw = {} if self.bar_cls is not tqdm else dict(
             file=self.file, disable=self.disable, dynamic_ncols=True, position=self.position, leave=self.leave
         )  # fmt: skip

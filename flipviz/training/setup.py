@@ -1,6 +1,8 @@
 """Everything a run trains with, built once from its config and scene, in the paper's order.
 
-    split      = the protocol's inputs / unobserved tests / Upper views     (data/protocol.py)
+    split      = the protocol's inputs / unobserved tests / Upper views     (data/protocol.py),
+                 or a capture's chosen inputs and held-out frames            (data/selection.py)
+    estimate   = with --mirror-plane auto, the plane estimated from inputs  (plane_estimate.py)
     mirrors    = flipped inputs with their initial poses                    (flip.py, step 1)
     training   = the method's views and their ray bank                      (methods.py)
     model      = radiance field + renderer                                  (model/radiance.py)
@@ -11,16 +13,21 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
 from flipviz.data.dataset import SceneData
 from flipviz.data.protocol import Split, make_split
+from flipviz.data.selection import select_split
+from flipviz.errors import UserError
+from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.geometry.mirror import MirrorSet
 from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, PoseRefiner, RadianceModel
 from flipviz.training import flip
 from flipviz.training.config import TrainConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
+from flipviz.training.plane_estimate import estimate_or_read
 
 
 @dataclass
@@ -29,6 +36,7 @@ class RunSetup:
     spec: MethodSpec
     split: Split
     mirrors: MirrorSet  # built for every method, so that the app can show the would-be mirrors
+    estimate: PlaneEstimate | None  # --mirror-plane auto (Flip methods)
     training: TrainingSet
     model: RadianceModel
     refiner: PoseRefiner | None
@@ -49,15 +57,28 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
     return ModelConfig(field=field, n_samples=cfg.n_samples, beta2_mode=cfg.beta2_mode)
 
 
-def build_run(cfg: TrainConfig, scene: SceneData) -> RunSetup:
+def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
+    """The protocol's configuration for orbit data without --inputs; else the chosen inputs."""
+    if scene.protocol and not cfg.inputs:
+        return make_split(scene, cfg.config)
+    if cfg.method == "upper":
+        raise UserError("method upper needs the protocol's Upper views: an orbit scene without --inputs")
+    return select_split(scene, cfg.inputs)
+
+
+def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = None) -> RunSetup:
+    """Everything a run trains with; `saved_estimate`: the plane.json of a run being resumed."""
     device = torch.device(cfg.device)
     spec = method_spec(cfg)
-    split = make_split(scene, cfg.config)
-    mirrors = flip.mirrored_views(cfg, split.inputs, scene.symmetry_plane)
+    split = run_split(cfg, scene)
+    estimate = None
+    if cfg.mirror_plane == "auto" and spec.mirrors:
+        estimate = estimate_or_read(split.inputs, scene, cfg.device, cfg.seed, saved_estimate)
+    mirrors = flip.mirrored_views(cfg, split.inputs, scene, estimate.plane if estimate else None)
     training = build_training_set(
         spec, split.inputs, flip.mirrored_train_views(spec, mirrors), split.uppers, device=device
     )
     mcfg = model_config(cfg)
     model = RadianceModel(mcfg, scene.bbox, scene.near, scene.far, with_beta=spec.uses_beta, device=device)
     refiner = flip.pose_refiner(training, cfg.steps, device)
-    return RunSetup(scene, spec, split, mirrors, training, model, refiner, flip.objective(cfg, mcfg.beta_min))
+    return RunSetup(scene, spec, split, mirrors, estimate, training, model, refiner, flip.objective(cfg, mcfg.beta_min))

@@ -29,8 +29,10 @@ from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
 from flipviz.files import FolderLock
 from flipviz.geometry.poses import pose_errors
+from flipviz.geometry.symmetry import plane_error
 from flipviz.model.objective import psnr
 from flipviz.training import artifacts
+from flipviz.training.artifacts import PLANE_FILE
 from flipviz.training import checkpoint as ckpt
 from flipviz.training import evaluate as ev
 from flipviz.training.config import TrainConfig
@@ -74,13 +76,18 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self._gen = torch.Generator().manual_seed(cfg.seed)
         self.scene = scene if scene is not None else load_scene_for(cfg)
-        rs = build_run(cfg, self.scene)
+        resumed = Path(cfg.resume) if cfg.resume is not None else None  # a checkpoint or its run folder
+        saved = (resumed if resumed.is_dir() else resumed.parent) / PLANE_FILE if resumed is not None else None
+        rs = build_run(cfg, self.scene, saved)
         self.spec, self.split, self.mirrors, self.training = rs.spec, rs.split, rs.mirrors, rs.training
+        self.plane_estimate = rs.estimate
         self.model, self.refiner, self.objective = rs.model, rs.refiner, rs.objective
         self.opt_field = self.model.make_optimizer()
         self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
         self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
         self._lock_file = FolderLock(self.run_dir)  # the run folder, created and ours until run() ends
+        if self.plane_estimate is not None:
+            artifacts.write_plane(self.run_dir, self.plane_estimate)
         self.step = 0
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
         self._observers: list[Observer] = []
@@ -232,9 +239,11 @@ class Trainer:
         preds = [self.render(v.camera, ("rgb",))["rgb"] for v in tests]
         m = ev.score_views(preds, [v.rgb for v in tests], [v.name for v in tests])
         m.update(
-            train_seconds=self.train_seconds, steps=self.step, method=self.cfg.method, config=self.cfg.config,
+            train_seconds=self.train_seconds, steps=self.step, method=self.cfg.method, config=self.split.config,
             scene=self.scene.name, mirror_plane=self.cfg.mirror_plane, settings=self.cfg.to_dict(),
         )  # fmt: skip
+        if self.spec.mirrors:
+            m["plane"] = self._plane_report()
         pose = self._pose_report()
         if pose:
             m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items()}
@@ -320,11 +329,24 @@ class Trainer:
         cams += [CameraInfo("test", v.camera, v.rgb, v.name) for v in self.split.tests]
         cams += [CameraInfo("upper", v.camera, v.rgb, v.name) for v in self.split.uppers]
         return SetupEvent(
-            run_name=self.run_dir.name, scene=self.scene.name, method=self.cfg.method, config=self.cfg.config,
+            run_name=self.run_dir.name, scene=self.scene.name, method=self.cfg.method, config=self.split.config,
             total_steps=self.cfg.steps, sphere_center=ms.sphere.center.copy(), sphere_radius=float(ms.sphere.radius),
             plane=ms.plane if self.spec.mirrors else None, true_plane=self.scene.symmetry_plane, cameras=cams,
             bbox=np.asarray(self.scene.bbox, dtype=np.float64), settings=self.cfg.to_dict(),
+            up=np.asarray(self.scene.up, dtype=np.float64), plane_estimate=self.plane_estimate,
         )  # fmt: skip
+
+    def _plane_report(self) -> dict:
+        """The mirror plane used, its estimate (auto), and its error against the scene's true plane."""
+        rep: dict = {"used": self.mirrors.plane.to_dict(), "preset": self.cfg.mirror_plane}
+        if self.plane_estimate is not None:
+            rep["confidence"] = self.plane_estimate.confidence
+            rep["estimate_seconds"] = self.plane_estimate.seconds
+        true = self.scene.symmetry_plane
+        if true is not None:
+            deg, offset = plane_error(self.mirrors.plane, true)
+            rep.update(error_deg=deg, error_offset=offset)
+        return rep
 
     def _pose_report(self) -> dict:
         c2w = self.mirror_c2w()

@@ -23,7 +23,7 @@ from flipviz.data.cameras import Camera
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
 from flipviz.training.config import TrainConfig
-from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent
+from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent, split_label
 from flipviz.viz import palette
 from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
 from flipviz.viz.rerun_viewer import RerunWebViewer
@@ -187,7 +187,7 @@ class RerunObserver(Observer):
         rec.log(
             "run",
             rr.TextDocument(
-                f"# {e.run_name}\n\nscene **{e.scene}**, method **{e.method}**, configuration **{e.config}**, "
+                f"# {e.run_name}\n\nscene **{e.scene}**, method **{e.method}**, {split_label(e.config)}, "
                 f"{e.total_steps} steps\n\n{settings}",
                 media_type="text/markdown",
             ),

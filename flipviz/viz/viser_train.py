@@ -11,7 +11,7 @@ import viser
 
 from flipviz.data.scenes import SCENES
 from flipviz.training.config import METHODS
-from flipviz.training.events import SetupEvent, StepEvent
+from flipviz.training.events import SetupEvent, StepEvent, split_label
 
 DATA_FOLDER = "(a data folder)"
 
@@ -94,7 +94,7 @@ class TrainPanel:
         render_share: float, message: str, run_dir: str | None,
     ) -> None:  # fmt: skip
         """The status text. During a restart it shows no number of the run that is going away."""
-        head = f"**{setup.scene} | {setup.method} | configuration {setup.config}**" if setup else "**flipviz**"
+        head = f"**{setup.scene} | {setup.method} | {split_label(setup.config)}**" if setup else "**flipviz**"
         parts = [f"status: **{status}**"]
         if ev is not None and status not in ("restarting", "starting"):
             s = ev.scalars

@@ -1,0 +1,92 @@
+"""Read COLMAP sparse models (cameras, images, points3D; .bin or .txt) through pycolmap.
+
+A capture folder holds `images/` and a model in `sparse/0/`, `sparse/` or the folder itself; masks,
+when there are any, in `masks/` with the image's name (nerfstudio writes `masks/<name>.png`).
+COLMAP's camera frame is OpenCV's (x right, y down, z forward) and its pose world-to-camera; flipviz
+turns each into an OpenGL camera-to-world: c2w = inverse(cam_from_world) @ diag(1, -1, -1, 1).
+Camera models: the pinhole ones and OpenCV's (OPENCV, RADIAL, SIMPLE_RADIAL), resampled into the
+flipviz pinhole by `capture.to_pinhole`. The scene box comes from the sparse points (or the masks).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from flipviz.data.capture import Intrinsics, make_capture, read_mask, to_pinhole
+from flipviz.data.cameras import Camera, View
+from flipviz.data.dataset import DatasetError, SceneData
+from flipviz.data.images import read_rgba
+
+OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
+MODEL_FILES = ("cameras.bin", "cameras.txt")
+
+
+def find_model(root: Path) -> Path | None:
+    """The sparse model folder of a capture: sparse/0, sparse or the folder itself."""
+    for d in (root / "sparse" / "0", root / "sparse", root):
+        if any((d / f).is_file() for f in MODEL_FILES):
+            return d
+    return None
+
+
+def _intrinsics(cam, where: str) -> Intrinsics:
+    """pycolmap camera -> Intrinsics (OpenCV distortion order k1, k2, p1, p2)."""
+    p = [float(x) for x in cam.params]
+    model = cam.model_name
+    W, H = int(cam.width), int(cam.height)
+    table = {  # model: (fx, fy, cx, cy, distortion) from its parameter list
+        "SIMPLE_PINHOLE": lambda: (p[0], p[0], p[1], p[2], ()),
+        "PINHOLE": lambda: (p[0], p[1], p[2], p[3], ()),
+        "SIMPLE_RADIAL": lambda: (p[0], p[0], p[1], p[2], (p[3], 0.0, 0.0, 0.0)),
+        "RADIAL": lambda: (p[0], p[0], p[1], p[2], (p[3], p[4], 0.0, 0.0)),
+        "OPENCV": lambda: (p[0], p[1], p[2], p[3], tuple(p[4:8])),
+    }
+    if model not in table:
+        raise DatasetError(f"{where}: COLMAP camera model {model} is not supported (flipviz reads {', '.join(table)})")
+    fx, fy, cx, cy, dist = table[model]()
+    return Intrinsics(W, H, fx, fy, cx, cy, dist).check(where)
+
+
+def load_colmap(path: str | os.PathLike, res: int | None = None, images: str = "images") -> SceneData:
+    """A COLMAP capture folder (images/ + sparse model) at width `res`."""
+    import pycolmap
+
+    root = Path(path)
+    model_dir = find_model(root)
+    if model_dir is None:
+        raise DatasetError(f"no COLMAP model (cameras.bin or cameras.txt) in {root}, {root}/sparse or {root}/sparse/0")
+    try:
+        rec = pycolmap.Reconstruction(str(model_dir))
+    except (ValueError, RuntimeError) as e:
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise DatasetError(f"COLMAP model {model_dir} is malformed: {msg}") from None
+    registered = sorted((im.name, im) for im in rec.images.values() if im.has_pose)
+    if not registered:
+        raise DatasetError(f"COLMAP model {model_dir} has no registered images")
+    image_dir = root / images
+    views: dict[int, View] = {}
+    for k, (name, im) in enumerate(registered):
+        ipath = image_dir / name
+        if not ipath.is_file():
+            raise DatasetError(f"image {ipath} of the COLMAP model not found")
+        rgba = read_rgba(ipath)
+        mpath = next((p for p in (root / "masks" / name, (root / "masks" / name).with_suffix(".png")) if p.is_file()), None)
+        if mpath is not None:
+            rgba[..., 3] = read_mask(mpath, rgba.shape[:2])
+        has_mask = mpath is not None or bool((rgba[..., 3] < 1).any())
+        if res is not None and res > rgba.shape[1]:
+            raise DatasetError(f"--res {res} is wider than the images of {root} ({rgba.shape[1]} px); flipviz does not upscale")
+        intr = _intrinsics(rec.cameras[im.camera_id], f"{model_dir} camera {im.camera_id}")
+        rgb, alpha, focal = to_pinhole(rgba, intr, res)
+        w2c = np.eye(4)
+        w2c[:3] = im.cam_from_world().matrix()
+        c2w = np.linalg.inv(w2c) @ OPENCV_TO_OPENGL
+        views[k] = View(Camera(c2w, rgb.shape[1], rgb.shape[0], focal, name=Path(name).stem), rgb, alpha if has_mask else None, index=k)
+    sizes = {v.rgb.shape[:2] for v in views.values()}
+    if len(sizes) > 1:
+        raise DatasetError(f"{root}: images have different sizes {sorted(sizes)}; flipviz needs one size")
+    points = np.array([p.xyz for p in rec.points3D.values()]) if rec.num_points3D() else None
+    return make_capture(root.name, views, str(root), {}, points, None, {"format": "colmap", "model": str(model_dir)})
