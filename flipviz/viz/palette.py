@@ -37,6 +37,11 @@ LEGEND = (  # (emoji square, what), shown in the app; the squares match the colo
     ("🟥🟨🟩", "mirror scores: contradicts / partly / agrees with the model"),
 )
 
+def hex_color(rgb: RGB) -> str:
+    """'#rrggbb' for web widgets (charts)."""
+    return "#{:02x}{:02x}{:02x}".format(*rgb)
+
+
 SCALAR_CMAP = "viridis"  # depth, opacity, beta^2, |error|, disagreement
 BETA2_RANGE = (0.0, 0.1)  # fixed, so frames compare; its floor beta_min^2 = 0.01; at the NLL optimum
 # beta^2 = ||C - C_hat||^2 (Sec. IV-C), and most symmetry-breaking pixels on the chair stay below 0.1

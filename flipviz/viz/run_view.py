@@ -11,6 +11,7 @@ from typing import Protocol
 import numpy as np
 
 from flipviz.data.cameras import Camera
+from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.training.events import SetupEvent
 
 OUTPUTS_ALL = ("rgb", "depth", "opacity", "beta2")
@@ -23,4 +24,8 @@ class RunView(Protocol):
 
     def render(self, camera: Camera, outputs: tuple[str, ...] = OUTPUTS_ALL) -> dict[str, np.ndarray] | None:
         """The current model seen from `camera` (None while no model exists); thread-safe."""
+        ...
+
+    def estimate_plane(self) -> PlaneEstimate | None:
+        """The mirror plane estimated from the run's inputs (None while no run exists); slow (seconds)."""
         ...

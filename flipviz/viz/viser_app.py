@@ -29,12 +29,13 @@ import viser
 from flipviz.data import SceneData, load_scene
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
-from flipviz.data.protocol import make_split
 from flipviz.errors import UserError
 from flipviz.files import signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
+from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
+from flipviz.training.setup import run_split
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.viz import palette
 from flipviz.viz.viser_common import plane_to_arg
@@ -119,7 +120,9 @@ def check_run_input(cfg: TrainConfig) -> SceneData:
 
         load_checkpoint(cfg.resume)
     scene = load_scene(cfg.scene, cfg.data, cfg.res)
-    make_mirror_set(make_split(scene, cfg.config).inputs, cfg.mirror_plane, scene.symmetry_plane)
+    inputs = run_split(cfg, scene).inputs
+    if cfg.mirror_plane != "auto":  # auto is estimated when the run starts
+        make_mirror_set(inputs, cfg.mirror_plane, scene.symmetry_plane, scene.center, scene.up)
     return scene
 
 
@@ -352,6 +355,11 @@ class App(Observer):
         if trainer is None:
             return None
         return trainer.render(camera, outputs=outputs)
+
+    def estimate_plane(self) -> PlaneEstimate | None:
+        """The mirror plane estimated from the current run's inputs (None while no run exists)."""
+        trainer = self.trainer
+        return trainer.estimate_plane() if trainer is not None else None
 
     # ---- Observer (called in the trainer's thread: copy and return) -------------------------
     def on_setup(self, event: SetupEvent) -> None:

@@ -16,10 +16,11 @@ from typing import Callable
 import numpy as np
 import viser
 
-from flipviz.data.cameras import Camera
+from flipviz.data.cameras import WORLD_UP, Camera, horizontal_basis
 from flipviz.data.dataset import Plane
 from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
 from flipviz.geometry.sphere import Sphere
+from flipviz.geometry.symmetry import CONFIDENT, PlaneEstimate, plane_error
 from flipviz.training.events import ImagesEvent, SetupEvent
 from flipviz.data.images import to_uint8
 from flipviz.training.evaluate import image_psnr
@@ -50,6 +51,10 @@ current model (🟥 contradicts, 🟩 agrees); set *Mirrored frustums show* to *
 where; then restart training with the new plane."""
 
 FRUSTUM_IMAGES = ("flipped image", "disagreement", "beta^2")
+ESTIMATE_HELP = (
+    "_No estimate yet. **Estimate plane** finds the mirror plane from the input views alone (a short B/L fit, "
+    "then the reflection that maps what the inputs saw onto itself), with a confidence._"
+)
 
 
 class MirrorLesson:
@@ -79,6 +84,17 @@ class MirrorLesson:
         self.reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         self.restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
         self.table = gui.add_markdown("_Scores appear with the first image event or Score mirrors._")
+        with gui.add_folder("Estimated plane") as self.est_folder:
+            self.est_text = gui.add_markdown(ESTIMATE_HELP)
+            self.est_btn = gui.add_button("Estimate plane", icon=viser.Icon.SEARCH,
+                                          hint="A short B/L fit of the inputs, then the reflection that maps it onto itself")  # fmt: skip
+            self.use_est_btn = gui.add_button("Use estimated plane", icon=viser.Icon.CHECK, disabled=True)
+        self.est_plot: viser.GuiUplotHandle | None = None
+        self.estimate: PlaneEstimate | None = None
+        self._estimating = threading.Lock()
+        self.est_btn.on_click(lambda _: self._start_estimate())
+        self.use_est_btn.on_click(lambda _: self.estimate is not None and self.set_plane(self.estimate.plane))
+        self.up = WORLD_UP.copy()
         self.inputs: list[Camera] = []
         self.flipped: list[np.ndarray] = []
         self.sphere: Sphere | None = None
@@ -110,6 +126,7 @@ class MirrorLesson:
             self.inputs = [c.camera for c in inputs]
             self.flipped = [flip_image(c.image) if c.image is not None else None for c in inputs]
             self.sphere = Sphere(setup.sphere_center, setup.sphere_radius)
+            self.up = np.asarray(setup.up, dtype=np.float64)
             plane = setup.plane
             if plane is None:  # a method without mirrors: show the plane it would use
                 try:
@@ -136,6 +153,7 @@ class MirrorLesson:
             self.gizmo.on_update(self._on_gizmo)
             self._apply_plane(plane)
         self.table.content = "_Scores appear with the first image event or Score mirrors._"
+        self.show_estimate(setup.plane_estimate)
 
     def clear(self) -> None:
         with self._lock:
@@ -158,7 +176,8 @@ class MirrorLesson:
     def _typed_azimuth(self) -> None:
         if self.sphere is not None:
             a = np.radians(float(self.azimuth.value))
-            self.set_plane(Plane(self.sphere.center, np.array([np.cos(a), np.sin(a), 0.0])))
+            u, v = horizontal_basis(self.up)
+            self.set_plane(Plane(self.sphere.center, np.cos(a) * u + np.sin(a) * v))
 
     def _typed_plane(self) -> None:
         try:
@@ -187,7 +206,7 @@ class MirrorLesson:
         if self.sphere is None or not self.inputs:
             return
         try:
-            cams = mirror_cameras_for_plane(self.inputs, plane, self.sphere)
+            cams = mirror_cameras_for_plane(self.inputs, plane, self.sphere, self.up)
         except Exception as e:  # e.g. a reflected centre at the sphere centre
             self.plane_text.content = f"_Cannot mirror with this plane: {e}_"
             return
@@ -246,6 +265,52 @@ class MirrorLesson:
         if self.plane is not None:
             self.on_restart(self.plane)
 
+    # ---- the estimated plane ----------------------------------------------------------------
+    def _start_estimate(self) -> None:
+        if not self._estimating.acquire(blocking=False):
+            return  # one estimate at a time
+        self.est_text.content = "_Estimating: a short B/L fit of the inputs, then the plane search (10-20 s)..._"
+        self.est_btn.disabled = True
+
+        def work() -> None:
+            try:
+                self.show_estimate(self.run.estimate_plane())
+            except Exception as e:  # noqa: BLE001 - shown, never fatal
+                self.est_text.content = f"_Cannot estimate a plane: {e}_"
+            finally:
+                self.est_btn.disabled = False
+                self._estimating.release()
+
+        threading.Thread(target=work, name="flipviz-plane-estimate", daemon=True).start()
+
+    def show_estimate(self, est: PlaneEstimate | None) -> None:
+        """The estimate beside the plane being dragged: plane, confidence, score against azimuth."""
+        self.estimate = est
+        self.use_est_btn.disabled = est is None
+        if est is None:
+            self.est_text.content = ESTIMATE_HELP
+            return
+        n, p = est.plane.normal + 0.0, est.plane.point + 0.0
+        verdict = "🟩 confident" if est.confident else "🟥 **not confident: the object may not be mirror-symmetric**"
+        lines = [
+            f"Normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f}) through ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}); "
+            f"confidence **{est.confidence:.2f}** ({verdict}; trusted from {CONFIDENT:g}), {est.seconds:.0f} s.",
+        ]
+        if self.train_plane is not None:
+            deg, off = plane_error(est.plane, self.train_plane)
+            lines.append(f"Against the training plane: {deg:.1f} deg, offset {off:.3f}.")
+        lines.append("The chart: the best score of the vertical planes at each normal azimuth (about up).")
+        self.est_text.content = " ".join(lines)
+        data = (np.asarray(est.azimuth_deg, np.float64), np.asarray(est.azimuth_score, np.float64))
+        if self.est_plot is None:
+            with self.est_folder:
+                self.est_plot = self.server.gui.add_uplot(
+                    data, ({"label": "azimuth (deg)"}, {"label": "score", "stroke": palette.hex_color(palette.MIRROR_PLANE)}),
+                    title="Mirror-plane score against azimuth", aspect=1.6,
+                )  # fmt: skip
+        else:
+            self.est_plot.data = data
+
     # ---- consistency scores -----------------------------------------------------------------
     def on_images(self, event: ImagesEvent) -> None:
         """PSNR of the model rendered from each (BA-refined) mirrored camera vs its flipped image."""
@@ -277,7 +342,7 @@ class MirrorLesson:
         else:
             c2w = self.run.mirror_c2w
             if c2w is None or len(c2w) != len(self.inputs):
-                cams = mirror_cameras_for_plane(self.inputs, self.train_plane, self.sphere)
+                cams = mirror_cameras_for_plane(self.inputs, self.train_plane, self.sphere, self.up)
             else:
                 cams = [c.with_pose(T) for c, T in zip(self.inputs, c2w)]
             label = f"BA poses (now), step {self.run.step}"
