@@ -5,7 +5,10 @@
 1. app.png: the chair training (Flip+U), your view rendered at the canvas size;
 2. app_snapped.png: snapped to an unobserved test view, ground truth and render blended half-half;
 3. app_mirror.png: the mug, its mirrored frustums coloured by their scores and showing where the
-   flipped images disagree with the model.
+   flipped images disagree with the model;
+4. app_capture.png: a robot's drive-by capture of the turned chair (`export-scene --trajectory
+   driveby`) trained with `--mirror-plane auto`: the Mirror tab's estimated plane, its confidence
+   and the score-against-azimuth chart.
 """
 
 from __future__ import annotations
@@ -31,10 +34,44 @@ class Args:
     out: Path = ROOT / "assets"
     steps_before: int = 700
     """Training steps before the first screenshot."""
+    shots: str = "orbit,capture"
+    """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png."""
 
 
 def main(args: Args) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
+    if "orbit" in args.shots:
+        orbit_shots(args)
+    if "capture" in args.shots:
+        capture_shot(args)
+    print(f"screenshots in {args.out}")
+
+
+def capture_shot(args: Args) -> None:
+    from flipviz.data.driveby import export_driveby
+
+    data = export_driveby("chair-turned", Path(tempfile.mkdtemp()) / "drive", res=100)
+    cfg = AppConfig(data=data, mirror_plane="auto", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
+    app = App(cfg).start()
+    try:
+        wait_until(lambda: app.step >= args.steps_before // 2, 600, what="training")
+        with chromium() as d:
+            d.get(f"http://127.0.0.1:{app.port}")
+            wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
+            time.sleep(5.0)
+            for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
+                toast.click()
+            tab(d, "Mirror")
+            checkbox(d, "Show plane preview", False)
+            folder = d.find_elements("xpath", "//*[normalize-space(text())='Estimated plane']")
+            d.execute_script("arguments[0].scrollIntoView({block: 'start'});", folder[0])
+            time.sleep(3.0)
+            d.save_screenshot(str(args.out / "app_capture.png"))
+    finally:
+        app.stop()
+
+
+def orbit_shots(args: Args) -> None:
     cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
     app = App(cfg).start()
     try:
@@ -74,7 +111,6 @@ def main(args: Args) -> None:
             d.save_screenshot(str(args.out / "app_mirror.png"))
     finally:
         app.stop()
-    print(f"screenshots in {args.out}")
 
 
 if __name__ == "__main__":

@@ -39,8 +39,8 @@ def app(tmp_path_factory):
         scene="chair", res=32, steps=100_000, batch_rays=256, no_rrd=True, port=0, log_every=2, images_every=40,
         checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("run"), render_duty=0.5, view_width=128,
     )  # fmt: skip
-    a = App(cfg).start()
-    deadline = time.monotonic() + 40
+    a = App(cfg).start()  # the app's default plane, auto: the run starts after the estimate (~10-20 s)
+    deadline = time.monotonic() + 120
     while (a.setup is None or a.step < 2) and time.monotonic() < deadline:
         assert a.status != "error", a.message
         time.sleep(0.1)
@@ -182,7 +182,7 @@ def test_moving_the_plane_moves_the_mirrors(app):
     inputs = [c.camera for c in setup.cameras if c.kind == "input"]
     sphere = Sphere(setup.sphere_center, setup.sphere_radius)
     new_plane = Plane(setup.sphere_center, np.array([0.3, 1.0, 0.0]))
-    expected = mirror_cameras_for_plane(inputs, new_plane, sphere)
+    expected = mirror_cameras_for_plane(inputs, new_plane, sphere, setup.up, setup.settings["mirror_pose"])
 
     async def go():
         async with ViserTestClient(url(app)) as c:
@@ -201,6 +201,27 @@ def test_moving_the_plane_moves_the_mirrors(app):
 
     run(go())
     assert app.mirror.moved and np.allclose(app.mirror.plane.normal, new_plane.normal)
+
+
+def test_the_estimated_plane_is_shown_beside_the_dragged_one(app):
+    """The app's default plane is auto: the Mirror tab shows the estimate, its confidence and the
+    score-against-azimuth chart, and "Use estimated plane" moves the gizmo onto it."""
+    est = app.setup.plane_estimate
+    assert est is not None and app.setup.settings["mirror_plane"] == "auto"
+    assert np.allclose(app.setup.plane.normal, est.plane.normal)  # the run trains with the estimate
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_for(lambda m: f"confidence **{est.confidence:.2f}**" in str(m))
+            await c.wait_for(lambda m: "Mirror-plane score against azimuth" in str(m))
+            await c.click("Use estimated plane")
+            await c.wait_for(
+                lambda m: m["type"] == "SetPositionMessage" and m["name"] == "/plane"
+                and np.allclose(m["position"], est.plane.point, atol=1e-4),
+            )  # fmt: skip
+
+    run(go())
 
 
 def test_mirror_consistency_scores_and_outputs(app):

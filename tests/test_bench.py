@@ -27,7 +27,7 @@ from flipviz.training.config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
-TINY = ["--methods", "bl,flip+u", "--configs", "1,2", "--res", "24", "--steps", "30", "--batch-rays", "256",
+TINY = ["--methods", "bl,flip+u", "--configs", "1,2", "--res", "24", "--steps", "30", "--batch-rays", "256", "--mirror-plane", "official",
         "--grid-res", "16", "24", "--n-samples", "32", "--cpus-per-run", "1", "--workers", "2"]  # fmt: skip
 
 

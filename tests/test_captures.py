@@ -195,19 +195,28 @@ def _colmap_capture(root: Path, cams: list[Camera], images: list[np.ndarray], bi
 
 
 @pytest.mark.parametrize("binary", [False, True])
-def test_colmap_text_and_binary_models(tmp_path, binary):
+def test_colmap_text_and_binary_models(tmp_path, binary, caplog):
     cams = _ring(5)
     images = [uncomposite(*render_view("chair", c)) for c in cams]
     for im in images:
         im[..., 3] = 255  # no masks: the background is part of the capture
     root = _colmap_capture(tmp_path / "c", cams, images, binary)
-    scene = load_scene("", root, res=W)
+    with caplog.at_level("WARNING", logger="flipviz.data"):
+        scene = load_scene("", root, res=W)
+    assert [r.getMessage().count("\n") for r in caplog.records] == [0] and "no masks" in caplog.text
     assert not scene.protocol and scene.meta["format"] == "colmap" and scene.meta["box_from"] == "sparse points"
     assert not scene.meta["masked"] and all(v.alpha is None for v in scene.views.values())
     for k, v in scene.views.items():
         assert np.allclose(v.camera.c2w, cams[k].c2w, atol=1e-6), "COLMAP's world-to-camera (OpenCV) was not inverted to OpenGL c2w"
     assert np.all(scene.bbox[0] < -0.55) and np.all(scene.bbox[1] > 0.55) and np.all(np.abs(scene.bbox) < 1.0)
     assert 0 < scene.near < 3.0 < 4.5 < scene.far
+    # no masks: the inputs train on every pixel, the flipped images only on rays through the box
+    from flipviz.training.setup import build_run
+
+    ts = build_run(TrainConfig(data=root, res=W, method="flip", inputs="all", mirror_plane="opposite"), scene).training
+    per_view = np.bincount(ts.bank.view.numpy(), minlength=len(ts.views))
+    assert all(per_view[i] == W * W for i in range(len(cams)))
+    assert all(0 < per_view[i] < W * W for i in ts.mirror_ids)
 
 
 def test_colmap_malformed_is_one_line(tmp_path):

@@ -36,7 +36,7 @@ def _ts(scene, **kw):
     cfg = TrainConfig(res=RES, **kw)
     spec = method_spec(cfg)
     split = make_split(scene, cfg.config)
-    mirrors = flip.mirrored_train_views(spec, flip.mirrored_views(cfg, split.inputs, scene))
+    mirrors = flip.mirrored_train_views(spec, flip.mirrored_views(cfg, split.inputs, scene), scene.bbox)
     return build_training_set(spec, split.inputs, mirrors, split.uppers)
 
 

@@ -27,7 +27,7 @@ from flipviz.training.config import TrainConfig
 from flipviz.training.trainer import Trainer
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = dict(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0)
+TINY = dict(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, mirror_plane="official")
 
 
 @pytest.fixture(autouse=True)
@@ -52,7 +52,7 @@ SAVE_CHILD = textwrap.dedent("""
     import os, signal, sys, torch
     from flipviz.training.config import TrainConfig
     from flipviz.training.trainer import Trainer
-    tr = Trainer(TrainConfig(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), out=sys.argv[1]))
+    tr = Trainer(TrainConfig(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), mirror_plane="official", out=sys.argv[1]))
     real_save = torch.save
     def save_and_interrupt(obj, f, *a, **k):  # Ctrl-C lands in the middle of the write
         os.kill(os.getpid(), signal.SIGINT)
@@ -79,7 +79,7 @@ def test_an_interrupt_inside_the_save_keeps_the_checkpoint(tmp_path):
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig):
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "flipviz.cli", "train", "--scene", "chair", "--res", "24", "--steps", "100000",
+    cmd = [sys.executable, "-m", "flipviz.cli", "train", "--scene", "chair", "--mirror-plane", "official", "--res", "24", "--steps", "100000",
            "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24", "--log-every", "1", "--images-every", "0",
            "--checkpoint-every", "0", "--no-eval-on-stop", "--out", str(out)]  # fmt: skip
     p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -111,7 +111,7 @@ def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig):
 # ------------------------------------------------------------------------- 3: resume keeps the recording
 def test_resume_into_the_same_folder_keeps_the_earlier_recording(tmp_path):
     out = tmp_path / "run"
-    base = ["--scene", "chair", "--res", "24", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
+    base = ["--scene", "chair", "--mirror-plane", "official", "--res", "24", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
             "--images-every", "0", "--log-every", "1", "--out", str(out)]  # fmt: skip
     assert flipviz("train", *base, "--steps", "20").returncode == 0
     first = read_rrd(out / "recording.rrd")
@@ -195,7 +195,8 @@ BAD = [
     (["--device", "cuda"], "CUDA"), (["--device", "tpu"], "tpu"), (["--batch-rays", "-3"], "--batch-rays"),
     (["--log-every", "0"], "--log-every"), (["--steps", "0"], "--steps"), (["--steps", "-5"], "--steps"),
     (["--res", "5"], "--res"), (["--res", "4000"], "--res"), (["--batch-rays", "0"], "--batch-rays"),
-    (["--n-samples", "0"], "--n-samples"),
+    (["--n-samples", "0"], "--n-samples"), (["--mirror-plane", "sideways"], "bad mirror plane"),
+    (["--mirror-plane", "0,0,0;0,0,0"], "normal is zero"),
 ]  # fmt: skip
 
 
@@ -225,7 +226,7 @@ def test_bad_resume_checkpoints_are_one_line(tmp_path, capsys):
 def test_unwritable_run_folder_and_recording_are_one_line(tmp_path, capsys):
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
-    base = ["train", "--scene", "chair", "--res", "24", "--steps", "2", "--images-every", "0"]
+    base = ["train", "--scene", "chair", "--mirror-plane", "official", "--res", "24", "--steps", "2", "--images-every", "0"]
     assert cli.main([*base, "--out", str(blocker / "run")]) == 2
     assert "cannot write" in capsys.readouterr().err
     assert cli.main([*base, "--out", str(tmp_path / "run"), "--rrd", str(tmp_path)]) == 2  # a directory
@@ -240,7 +241,7 @@ def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
     out = tmp_path / "bench"
     cmd = [sys.executable, "-m", "flipviz.cli", "bench", "--scenes", "chair", "--methods", "bl,flip", "--configs", "1-4",
            "--res", "24", "--steps", "400", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
-           "--out", str(out), "--quiet"]  # fmt: skip
+           "--mirror-plane", "official", "--out", str(out), "--quiet"]  # fmt: skip
     p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
     try:

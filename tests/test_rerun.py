@@ -75,7 +75,7 @@ def run(tmp_path_factory):
     """A real Flip+U run on the built-in chair, recorded to a file and served to a local web viewer."""
     out = tmp_path_factory.mktemp("rerun") / "run"
     cfg = TrainConfig(scene="chair", res=32, steps=STEPS, log_every=LOG_EVERY, images_every=IMAGES_EVERY,
-                      batch_rays=256, out=out, checkpoint_every=0, rerun_serve=True)
+                      batch_rays=256, out=out, checkpoint_every=0, rerun_serve=True, mirror_plane="official")
     trainer = Trainer(cfg)
     obs = make_rerun_observer(cfg, trainer.run_dir)
     keep = Keep()
@@ -196,7 +196,7 @@ CHILD = textwrap.dedent("""
             print(e.step, flush=True)
 
     cfg = TrainConfig(scene="chair", res=32, steps=1000, log_every=1, images_every=0, batch_rays=256,
-                      out=Path(sys.argv[1]), checkpoint_every=0)
+                      out=Path(sys.argv[1]), checkpoint_every=0, mirror_plane="official")
     trainer = Trainer(cfg)
     trainer.add_observer(make_rerun_observer(cfg, trainer.run_dir, flush_every_s=0.0))
     trainer.add_observer(Say())

@@ -16,7 +16,7 @@ from flipviz.training.events import Observer
 from flipviz.training.trainer import Trainer
 
 RES = 24
-TINY = dict(res=RES, batch_rays=512, n_samples=32, grid_res=(32,))
+TINY = dict(res=RES, batch_rays=512, n_samples=32, grid_res=(32,), mirror_plane="official")  # auto: tests/test_plane_estimate.py
 
 
 @pytest.fixture(autouse=True)

@@ -46,6 +46,11 @@ class BenchConfig:
     """Threads (and Ray CPUs) per run; 0: cores // workers (local) or 1 (ray)."""
     ablation: bool = False
     """Also run Table II: Flip+U with bundle adjustment and uncertainty each on/off."""
+    mirror_plane: str = TrainConfig.mirror_plane
+    """Mirror plane of the Flip runs: auto (estimated from each run's inputs) | official (x = 0, the
+    authors' code) | opposite | scene | 'px,py,pz;nx,ny,nz'."""
+    mirror_pose: Literal["reflect", "lookat"] = TrainConfig.mirror_pose
+    """Initial mirrored poses: reflect (each camera reflected through the plane) | lookat (the paper's)."""
     seed: int = TrainConfig.seed
     """Seed of every run (each run is independent and seeded)."""
     device: str = TrainConfig.device

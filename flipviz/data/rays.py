@@ -23,14 +23,19 @@ class RayBank:
     rgb: torch.Tensor  # (N, 3) float32 target colours
 
     @classmethod
-    def from_images(cls, cameras: list[Camera], images: list[np.ndarray], device: str | torch.device = "cpu") -> "RayBank":
+    def from_images(
+        cls, cameras: list[Camera], images: list[np.ndarray], device: str | torch.device = "cpu",
+        keep: list[np.ndarray | None] | None = None,
+    ) -> "RayBank":  # fmt: skip
+        """Every pixel of every view; `keep[i]` (H, W) bool, when given, keeps only those of view i."""
         views, dirs, rgbs = [], [], []
         for i, (cam, img) in enumerate(zip(cameras, images, strict=True)):
             if img.shape[:2] != (cam.height, cam.width):
                 raise ValueError(f"view {cam.name!r}: image {img.shape[:2]} does not match camera {cam.height}x{cam.width}")
-            views.append(np.full(cam.width * cam.height, i, np.int64))
-            dirs.append(pixel_directions(cam.width, cam.height, cam.focal))
-            rgbs.append(img.reshape(-1, 3))
+            k = keep[i].reshape(-1) if keep is not None and keep[i] is not None else slice(None)
+            views.append(np.full(cam.width * cam.height, i, np.int64)[k])
+            dirs.append(pixel_directions(cam.width, cam.height, cam.focal)[k])
+            rgbs.append(img.reshape(-1, 3)[k])
         t = lambda a, dt: torch.from_numpy(np.concatenate(a)).to(device=device, dtype=dt)  # noqa: E731
         return cls(t(views, torch.long), t(dirs, torch.float32), t(rgbs, torch.float32))
 

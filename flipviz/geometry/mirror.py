@@ -128,9 +128,16 @@ def exact_reflected_camera(cam: Camera, plane: Plane) -> Camera:
 
 
 def mirror_cameras_for_plane(
-    inputs: Sequence[Camera | View], plane: Plane, sphere: Sphere, up: np.ndarray = WORLD_UP
+    inputs: Sequence[Camera | View], plane: Plane, sphere: Sphere, up: np.ndarray = WORLD_UP, pose: str = "lookat"
 ) -> list[Camera]:
-    """Initial mirrored cameras for all inputs and a given plane (the app recomputes these live)."""
+    """Initial mirrored cameras ('<name>_flip') for all inputs and a plane (the app recomputes these live).
+
+    pose "lookat": the paper's initial pose (exact only when the plane holds the sphere centre and the
+    cameras look at it); "reflect": each camera reflected whole through the plane (exact for an object
+    symmetric about that plane, on any trajectory).
+    """
+    if pose == "reflect":
+        return [(m := exact_reflected_camera(c, plane)).with_pose(m.c2w, name=f"{c.name}_flip") for c in _cameras(inputs)]
     return [initial_mirrored_camera(c, plane, sphere, up) for c in _cameras(inputs)]
 
 
@@ -169,22 +176,23 @@ class MirrorSet:
 
 def make_mirror_set(
     inputs: Sequence[View], plane_preset: str | Plane, scene_plane: Plane | None = None,
-    center: np.ndarray | None = None, up: np.ndarray = WORLD_UP,
+    center: np.ndarray | None = None, up: np.ndarray = WORLD_UP, pose: str = "lookat",
 ) -> MirrorSet:
     """Paper Sec. IV-A end to end: sphere through the input centres, plane, flipped views, poses.
 
     `plane_preset` is a preset name, a user string, or a Plane (e.g. one estimated from the inputs);
-    `center` and `up` come from the scene (captures: from the data; orbits: None and +z).
+    `center` and `up` come from the scene (captures: from the data; orbits: None and +z); `pose`
+    is "lookat" or "reflect" (`mirror_cameras_for_plane`).
     """
     if len(inputs) == 0:
         raise DatasetError("no input views to mirror")
     sphere = camera_sphere(inputs, center)
     plane = plane_preset if isinstance(plane_preset, Plane) else mirror_plane(plane_preset, inputs, sphere, scene_plane, up)
     views = []
-    for v, cam in zip(inputs, mirror_cameras_for_plane(inputs, plane, sphere, up)):
+    for v, cam in zip(inputs, mirror_cameras_for_plane(inputs, plane, sphere, up, pose)):
         alpha = None if v.alpha is None else flip_image(v.alpha)
         meta = {"mirrored": True, "source": v.name, "source_index": v.index}
         views.append(View(camera=cam, rgb=flip_image(v.rgb), alpha=alpha, index=-1, meta=meta))
     true = None if scene_plane is None else [exact_reflected_camera(v.camera, scene_plane) for v in inputs]
     preset = "estimated" if isinstance(plane_preset, Plane) else str(plane_preset)
-    return MirrorSet(plane, sphere, views, true, meta={"preset": preset})
+    return MirrorSet(plane, sphere, views, true, meta={"preset": preset, "pose": pose})

@@ -69,6 +69,7 @@ class TrainView:
     refine: bool  # pose is refined by BA
     uncertain: bool  # its rays use the learned-variance loss
     source: str = ""  # mirrors: the input view it was flipped from
+    keep: np.ndarray | None = None  # (H, W) bool: the pixels it trains on (None: all)
 
 
 @dataclass
@@ -104,7 +105,7 @@ def build_training_set(
         if not uppers:
             raise ValueError("method upper needs the Upper views")
         views += [TrainView("upper", v.camera, v.rgb, False, False) for v in uppers]
-    bank = RayBank.from_images([v.camera for v in views], [v.image for v in views], device)
+    bank = RayBank.from_images([v.camera for v in views], [v.image for v in views], device, [v.keep for v in views])
     init = torch.from_numpy(np.stack([v.camera.c2w for v in views])).to(device=device, dtype=torch.float32)
     flags = lambda attr: torch.tensor([getattr(v, attr) for v in views], device=device)  # noqa: E731
     return TrainingSet(views, bank, init, flags("refine"), flags("uncertain"), mirror_ids)

@@ -9,8 +9,8 @@
 Nothing here looks at the test views or at the scene's true plane. The settings below (and the
 scoring constants of geometry/symmetry.py) were tuned on the untouched built-in scenes (chair,
 truck, mug, lamp; configurations 1 and 4) and measured on the turned ones, the other
-configurations and lego by benchmarks/bench_plane.py. 600 steps of 512 rays took 9 s on the
-2-core machine; 200 steps of 1024 rays left chair and lamp indistinguishable.
+configurations and lego by benchmarks/bench_plane.py. The fit (500 steps of 512 rays, 24 samples)
+took 8-12 s on the 2-core machine; 200 steps of 1024 rays left chair and lamp indistinguishable.
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ from flipviz.model.fit import fit
 
 log = logging.getLogger("flipviz.training")
 
-FIT_STEPS = 600
+FIT_STEPS = 500
 FIT_BATCH = 512
-FIT_SAMPLES = 32
+FIT_SAMPLES = 24
 FIT_GRID = (32, 64)
 VOLUME_RES = 64
 DEPTH_RES = 64  # width of the depth maps that decide what the inputs saw
@@ -63,7 +63,7 @@ def symmetry_volume(model: RadianceModel, inputs: list[View], box: np.ndarray, r
         vis = (z > 1e-6) & (u >= 0) & (u < cam.width) & (r >= 0) & (r < cam.height)
         dist = np.linalg.norm(lattice[vis] - cam.center, axis=1)
         seen[np.flatnonzero(vis)[dist <= depth[r[vis].astype(int), u[vis].astype(int)] + 2.0 * cell.max()]] = True
-    pts = np.concatenate(surface) if surface else np.zeros((0, 3))
+    pts = np.concatenate(surface)
     pts = pts[np.all((pts >= box[0]) & (pts <= box[1]), axis=1)]
     idx = np.clip(np.round((pts - box[0]) / cell).astype(int), 0, res - 1)
     occ = np.zeros((res,) * 3, np.float32)

@@ -21,8 +21,8 @@ from flipviz.data.dataset import SceneData
 from flipviz.data.protocol import Split, make_split
 from flipviz.data.selection import select_split
 from flipviz.errors import UserError
-from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.geometry.mirror import MirrorSet
+from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, PoseRefiner, RadianceModel
 from flipviz.training import flip
 from flipviz.training.config import TrainConfig
@@ -76,7 +76,7 @@ def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = 
         estimate = estimate_or_read(split.inputs, scene, cfg.device, cfg.seed, saved_estimate)
     mirrors = flip.mirrored_views(cfg, split.inputs, scene, estimate.plane if estimate else None)
     training = build_training_set(
-        spec, split.inputs, flip.mirrored_train_views(spec, mirrors), split.uppers, device=device
+        spec, split.inputs, flip.mirrored_train_views(spec, mirrors, scene.bbox), split.uppers, device=device
     )
     mcfg = model_config(cfg)
     model = RadianceModel(mcfg, scene.bbox, scene.near, scene.far, with_beta=spec.uses_beta, device=device)

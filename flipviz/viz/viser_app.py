@@ -35,8 +35,8 @@ from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
-from flipviz.training.setup import run_split
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
+from flipviz.training.setup import run_split
 from flipviz.viz import palette
 from flipviz.viz.viser_common import plane_to_arg
 from flipviz.viz.viser_mirror import MirrorLesson

@@ -1,8 +1,9 @@
 """The symmetry lesson: drag the mirror plane, watch the mirrored cameras move, score the assumption.
 
 A transform gizmo sits on the mirror plane (its local +z is the plane normal). Moving it
-recomputes the paper's initial mirrored poses live (`mirror_cameras_for_plane`: reflect each
-input centre, back onto the sphere, look at its centre) and shows them as preview frustums
+recomputes the initial mirrored poses live (`mirror_cameras_for_plane`, with the run's rule: each
+camera reflected through the plane, or the paper's reflect-the-centre, back onto the sphere, look
+at its centre) and shows them as preview frustums
 carrying the flipped images. A button restarts training with that plane. The consistency score
 of a mirrored view is the PSNR of the current model rendered from that camera against its
 flipped image: low where the symmetry assumption fails.
@@ -38,10 +39,10 @@ from flipviz.viz.viser_render import RenderWorker
 from flipviz.viz.viser_scene import RunScene, plane_quad
 
 LESSON = """**What the mirror assumes.** Just Flip assumes the object is *mirror-symmetric* about a
-plane through the centre of the sphere fitted to the input cameras. Each input image is flipped
-left-right and given a pose: the camera centre is reflected through the plane, put back on the
-sphere and aimed at its centre. If the object really is symmetric, a camera there would see
-exactly the flipped image, so the unobserved side gets training views for free; bundle adjustment
+plane. Each input image is flipped left-right and given a pose: its camera reflected through the
+plane (the paper: the camera centre reflected through a plane through the centre of the sphere
+fitted to the cameras, put back on the sphere and aimed at its centre; the same on a ring around
+the object). If the object really is symmetric, a camera there would see exactly the flipped image, so the unobserved side gets training views for free; bundle adjustment
 corrects the small pose errors and the learned variance beta^2 down-weights pixels that still disagree.
 
 Where the object is **not** symmetric (a mug's handle, a one-sided lamp), the flipped views
@@ -94,7 +95,7 @@ class MirrorLesson:
         self._estimating = threading.Lock()
         self.est_btn.on_click(lambda _: self._start_estimate())
         self.use_est_btn.on_click(lambda _: self.estimate is not None and self.set_plane(self.estimate.plane))
-        self.up = WORLD_UP.copy()
+        self.up, self.pose = WORLD_UP.copy(), "reflect"  # the run's up and initial-pose rule
         self.inputs: list[Camera] = []
         self.flipped: list[np.ndarray] = []
         self.sphere: Sphere | None = None
@@ -127,6 +128,7 @@ class MirrorLesson:
             self.flipped = [flip_image(c.image) if c.image is not None else None for c in inputs]
             self.sphere = Sphere(setup.sphere_center, setup.sphere_radius)
             self.up = np.asarray(setup.up, dtype=np.float64)
+            self.pose = str(setup.settings.get("mirror_pose", "reflect"))
             plane = setup.plane
             if plane is None:  # a method without mirrors: show the plane it would use
                 try:
@@ -206,7 +208,7 @@ class MirrorLesson:
         if self.sphere is None or not self.inputs:
             return
         try:
-            cams = mirror_cameras_for_plane(self.inputs, plane, self.sphere, self.up)
+            cams = mirror_cameras_for_plane(self.inputs, plane, self.sphere, self.up, self.pose)
         except Exception as e:  # e.g. a reflected centre at the sphere centre
             self.plane_text.content = f"_Cannot mirror with this plane: {e}_"
             return
@@ -342,7 +344,7 @@ class MirrorLesson:
         else:
             c2w = self.run.mirror_c2w
             if c2w is None or len(c2w) != len(self.inputs):
-                cams = mirror_cameras_for_plane(self.inputs, self.train_plane, self.sphere, self.up)
+                cams = mirror_cameras_for_plane(self.inputs, self.train_plane, self.sphere, self.up, self.pose)
             else:
                 cams = [c.with_pose(T) for c, T in zip(self.inputs, c2w)]
             label = f"BA poses (now), step {self.run.step}"
