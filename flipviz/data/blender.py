@@ -9,7 +9,6 @@ when the views are not the contiguous orbit 0..N-1).
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Iterable
@@ -17,7 +16,7 @@ from typing import Iterable
 import numpy as np
 
 from flipviz.data.cameras import Camera, View
-from flipviz.data.dataset import DatasetError, SceneData
+from flipviz.data.dataset import DatasetError, SceneData, camera_to_world, check_resolution, read_transforms
 from flipviz.data.images import composite_on_white, read_rgba, save_rgba_png, uncomposite
 from flipviz.files import write_json
 
@@ -45,16 +44,10 @@ def load_blender(
     jpath = root / f"transforms_{split}.json"
     if not jpath.is_file():
         raise DatasetError(f"{jpath.name} not found in {root}")
-    try:
-        meta = json.loads(jpath.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{jpath} is not valid JSON ({str(e).splitlines()[0]})") from None
-    if res is not None and (isinstance(res, bool) or not isinstance(res, (int, np.integer)) or res < 1):
-        raise DatasetError(f"resolution must be a positive integer, got {res!r}")
+    meta = read_transforms(jpath)
+    check_resolution(res)
 
     try:
-        if not isinstance(meta, dict):
-            raise ValueError(f"the top level is a JSON {type(meta).__name__}, not an object with 'frames'")
         angle_x = float(meta["camera_angle_x"])
         if not isinstance(meta["frames"], list):
             raise ValueError(f"'frames' is a JSON {type(meta['frames']).__name__}, not a list of frames")
@@ -65,12 +58,7 @@ def load_blender(
         for k, fr in enumerate(frames):
             if not isinstance(fr, dict):
                 raise ValueError(f"frame {k} is a JSON {type(fr).__name__}, not an object")
-            c2w = np.asarray(fr["transform_matrix"], dtype=np.float64)
-            if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-                raise ValueError(f"frame {k}: transform_matrix is not a finite 4x4 matrix")
-            R = c2w[:3, :3]
-            if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or abs(np.linalg.det(R) - 1.0) > 1e-3:
-                raise ValueError(f"frame {k}: the rotation of transform_matrix is not a rotation (orthonormal, det 1)")
+            c2w = camera_to_world(fr["transform_matrix"], k)
             entries.append((int(fr["orbit_index"]) if "orbit_index" in fr else k, str(fr["file_path"]), c2w))
     except (KeyError, TypeError, ValueError) as e:
         what = f"missing key {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]

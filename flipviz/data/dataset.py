@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -12,6 +14,36 @@ from flipviz.errors import UserError
 
 class DatasetError(UserError):
     """Bad input data. Its message is one line, meant to be shown to the user as is."""
+
+
+def read_transforms(path: Path) -> dict:
+    """A transforms JSON file (Blender or nerfstudio) as a dict; one-line DatasetError otherwise."""
+    try:
+        meta = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{path} is not valid JSON ({str(e).splitlines()[0]})") from None
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{path} is malformed: the top level is a JSON {type(meta).__name__}, not an object with 'frames'")
+    return meta
+
+
+def check_resolution(res: object) -> None:
+    """--res for a data folder: None (the data's own) or a positive integer."""
+    if res is not None and (isinstance(res, bool) or not isinstance(res, (int, np.integer)) or res < 1):
+        raise DatasetError(f"resolution must be a positive integer, got {res!r}")
+
+
+def camera_to_world(matrix: object, k: int) -> np.ndarray:
+    """Frame k's transform_matrix (4x4, or 3x4) as a checked c2w; ValueError naming the frame."""
+    c2w = np.asarray(matrix, dtype=np.float64)
+    if c2w.shape == (3, 4):
+        c2w = np.concatenate([c2w, [[0.0, 0.0, 0.0, 1.0]]])
+    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+        raise ValueError(f"frame {k}: transform_matrix is not a finite 4x4 matrix")
+    R = c2w[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or abs(np.linalg.det(R) - 1.0) > 1e-3:
+        raise ValueError(f"frame {k}: the rotation of transform_matrix is not a rotation (orthonormal, det 1)")
+    return c2w
 
 
 @dataclass(frozen=True)

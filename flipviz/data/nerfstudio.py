@@ -12,7 +12,6 @@ applied to the original poses; read, checked and kept in `meta`), `aabb_scale`, 
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import numpy as np
 
 from flipviz.data.capture import Intrinsics, make_capture, read_mask, to_pinhole
 from flipviz.data.cameras import Camera, View
-from flipviz.data.dataset import DatasetError, Plane, SceneData
+from flipviz.data.dataset import DatasetError, Plane, SceneData, camera_to_world, check_resolution, read_transforms
 from flipviz.data.images import read_rgba, save_rgba_png, uncomposite
 from flipviz.files import write_json
 
@@ -41,18 +40,6 @@ def _intrinsics(d: dict, top: dict, model: str, where: str) -> Intrinsics:
     return Intrinsics(w, h, float(fx), float(get("fl_y", fx)), float(get("cx", w / 2)), float(get("cy", h / 2)), dist).check(where)
 
 
-def _pose(fr: dict, k: int) -> np.ndarray:
-    c2w = np.asarray(fr["transform_matrix"], dtype=np.float64)
-    if c2w.shape == (3, 4):
-        c2w = np.concatenate([c2w, [[0.0, 0.0, 0.0, 1.0]]])
-    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-        raise ValueError(f"frame {k}: transform_matrix is not a finite 4x4 matrix")
-    R = c2w[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or abs(np.linalg.det(R) - 1.0) > 1e-3:
-        raise ValueError(f"frame {k}: the rotation of transform_matrix is not a rotation (orthonormal, det 1)")
-    return c2w
-
-
 def _ply_points(path: Path) -> np.ndarray:
     import trimesh
 
@@ -69,16 +56,10 @@ def load_nerfstudio(path: str | os.PathLike, res: int | None = None) -> SceneDat
     if not jpath.is_file():
         raise DatasetError(f"transforms.json not found in {p}")
     root = jpath.parent
-    try:
-        meta = json.loads(jpath.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{jpath} is not valid JSON ({str(e).splitlines()[0]})") from None
-    if res is not None and (isinstance(res, bool) or not isinstance(res, (int, np.integer)) or res < 1):
-        raise DatasetError(f"resolution must be a positive integer, got {res!r}")
+    meta = read_transforms(jpath)
+    check_resolution(res)
 
     try:
-        if not isinstance(meta, dict):
-            raise ValueError(f"the top level is a JSON {type(meta).__name__}, not an object with 'frames'")
         model = str(meta.get("camera_model", "OPENCV" if any(k in meta for k in OPENCV_KEYS) else "PINHOLE"))
         if model not in MODELS:
             raise ValueError(f"camera_model {model} is not supported (flipviz reads {', '.join(MODELS)})")
@@ -90,7 +71,7 @@ def load_nerfstudio(path: str | os.PathLike, res: int | None = None) -> SceneDat
             if not isinstance(fr, dict):
                 raise ValueError(f"frame {k} is a JSON {type(fr).__name__}, not an object")
             intr = _intrinsics(fr, meta, str(fr.get("camera_model", model)), f"{jpath} frame {k}")
-            entries.append((str(fr["file_path"]), _pose(fr, k), intr, fr.get("mask_path")))
+            entries.append((str(fr["file_path"]), camera_to_world(fr["transform_matrix"], k), intr, fr.get("mask_path")))
         applied = meta.get("applied_transform")
         if applied is not None:
             A = np.asarray(applied, dtype=np.float64)
