@@ -58,6 +58,27 @@ ESTIMATE_HELP = (
 )
 
 
+def score_chart(est: PlaneEstimate, up: np.ndarray, size: tuple[int, int] = (400, 240)) -> np.ndarray:
+    """uint8 RGB chart: the best score of the vertical planes against their normal's azimuth, the
+    estimate's azimuth marked (matplotlib, drawn off-screen)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
+    ax = fig.add_subplot()
+    ax.plot(est.azimuth_deg, est.azimuth_score, color=palette.hex_color(palette.MIRROR_PLANE), lw=1.8)
+    u, v = horizontal_basis(up)
+    az = float(np.degrees(np.arctan2(est.plane.normal @ v, est.plane.normal @ u)) % 180.0)
+    ax.axvline(az, color="0.3", ls="--", lw=1)
+    ax.set(xlabel="normal azimuth about up (deg)", ylabel="score", xlim=(0, 180))
+    ax.set_title(f"estimate at {az:.1f} deg, confidence {est.confidence:.2f}", fontsize=9)
+    ax.tick_params(labelsize=8)
+    fig.tight_layout(pad=0.4)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
 class MirrorLesson:
     """The Mirror tab: a plane gizmo, live preview frustums, consistency scores, restart with a plane."""
 
@@ -90,7 +111,7 @@ class MirrorLesson:
             self.est_btn = gui.add_button("Estimate plane", icon=viser.Icon.SEARCH,
                                           hint="A short B/L fit of the inputs, then the reflection that maps it onto itself")  # fmt: skip
             self.use_est_btn = gui.add_button("Use estimated plane", icon=viser.Icon.CHECK, disabled=True)
-        self.est_plot: viser.GuiUplotHandle | None = None
+        self.est_plot: viser.GuiImageHandle | None = None
         self.estimate: PlaneEstimate | None = None
         self._estimating = threading.Lock()
         self.est_btn.on_click(lambda _: self._start_estimate())
@@ -301,17 +322,15 @@ class MirrorLesson:
         if self.train_plane is not None:
             deg, off = plane_error(est.plane, self.train_plane)
             lines.append(f"Against the training plane: {deg:.1f} deg, offset {off:.3f}.")
-        lines.append("The chart: the best score of the vertical planes at each normal azimuth (about up).")
+        lines.append("The chart: the best score of the vertical planes at each normal azimuth (about up); "
+                     "one sharp peak for a symmetric object.")
         self.est_text.content = " ".join(lines)
-        data = (np.asarray(est.azimuth_deg, np.float64), np.asarray(est.azimuth_score, np.float64))
+        chart = score_chart(est, self.up)
         if self.est_plot is None:
             with self.est_folder:
-                self.est_plot = self.server.gui.add_uplot(
-                    data, ({"label": "azimuth (deg)"}, {"label": "score", "stroke": palette.hex_color(palette.MIRROR_PLANE)}),
-                    title="Mirror-plane score against azimuth", aspect=1.6,
-                )  # fmt: skip
+                self.est_plot = self.server.gui.add_image(chart, label="Mirror-plane score against azimuth", format="png")
         else:
-            self.est_plot.data = data
+            self.est_plot.image = chart
 
     # ---- consistency scores -----------------------------------------------------------------
     def on_images(self, event: ImagesEvent) -> None:
