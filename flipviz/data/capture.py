@@ -17,7 +17,8 @@ Scene box, from the capture's training frames (held-out frames never shape it), 
 preference: the visual hull of the masks; the capture's sparse points
 (1st-99th percentile); a nerfstudio `aabb_scale` cube; a cube around the point the cameras look at.
 The object centre (the mirrors' look-at target) is the box's centre; near/far enclose the box from
-every camera; `up` is the mean of the cameras' up axes (an estimate, `up_known` False).
+every camera; `up` is the direction orthogonal to the cameras' x axes (`cameras_up`; an estimate,
+`up_known` False).
 """
 
 from __future__ import annotations
