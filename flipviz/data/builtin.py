@@ -31,13 +31,22 @@ RADIUS = 4.0
 NEAR, FAR = 2.0, 6.0
 
 
+def focal_px(res: int) -> float:
+    """The built-in cameras' focal length in pixels at width `res` (lego's field of view)."""
+    return float(0.5 * res / np.tan(0.5 * CAMERA_ANGLE_X))
+
+
+def ring_camera(azimuth_deg: float, res: int, name: str) -> Camera:
+    """A res x res camera on the orbit's ring (RADIUS, ELEVATION_DEG) at `azimuth_deg` (about +z,
+    from +x), looking at the origin."""
+    az, el = np.radians(azimuth_deg), np.radians(ELEVATION_DEG)
+    center = RADIUS * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    return Camera(look_at(center, np.zeros(3)), res, res, focal_px(res), name=name)
+
+
 def orbit_camera(index: int, res: int = 100) -> Camera:
     """The built-in orbit's camera number `index` at resolution res x res."""
-    az = np.radians(90.0 + DEG_PER_INDEX * index)  # index 0 on +y, as on the NeRF-synthetic orbit
-    el = np.radians(ELEVATION_DEG)
-    center = RADIUS * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    focal = 0.5 * res / np.tan(0.5 * CAMERA_ANGLE_X)
-    return Camera(look_at(center, np.zeros(3)), res, res, float(focal), name=f"r_{index}")
+    return ring_camera(90.0 + DEG_PER_INDEX * index, res, f"r_{index}")  # index 0 on +y, as on the NeRF-synthetic orbit
 
 
 _warm_lock = threading.Lock()

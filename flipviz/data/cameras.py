@@ -78,6 +78,16 @@ class Camera:
         height = round(self.height * width / self.width) if height is None else height
         return replace(self, width=int(width), height=int(height), focal=self.focal * width / self.width)
 
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World points (P, 3) -> integer pixel (row, column) (P, 2), and (P,) bool: in front of the
+        camera and inside the image. Rows and columns are valid only where the flag is set."""
+        p = (np.asarray(points, dtype=np.float64) - self.center) @ self.rotation  # camera frame, looks along -z
+        z = np.maximum(-p[:, 2], 1e-9)
+        u = self.focal * p[:, 0] / z + self.width / 2
+        r = -self.focal * p[:, 1] / z + self.height / 2
+        inside = (-p[:, 2] > 1e-6) & (u >= 0) & (u < self.width) & (r >= 0) & (r < self.height)
+        return r.astype(int), u.astype(int), inside
+
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """World-space ray origins and unit directions, (H*W, 3) float32 each, row-major pixels."""
         d = pixel_directions(self.width, self.height, self.focal) @ self.c2w[:3, :3].T.astype(np.float32)
@@ -144,6 +154,12 @@ def horizontal_basis(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u = ref - (ref @ up) * up
     u /= np.linalg.norm(u)
     return u, np.cross(up, u)
+
+
+def azimuth_deg(vector: np.ndarray, up: np.ndarray) -> float:
+    """Azimuth of `vector` about `up`, degrees in [0, 360), counted from u towards v of `horizontal_basis`."""
+    u, v = horizontal_basis(up)
+    return float(np.degrees(np.arctan2(vector @ v, vector @ u)) % 360.0)
 
 
 def unit_vector(v: np.ndarray, what: str) -> np.ndarray:

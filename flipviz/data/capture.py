@@ -11,7 +11,8 @@ become background (alpha 0).
 Masks. With a mask (an RGBA image or a mask file) the object is composited on white, as for the
 built-in scenes. Without one, the background is part of every image, and a flipped background is
 not what a mirrored camera would see: training still uses the whole input images, but the mirrored
-images keep only the rays that cross the scene box (`mirror_keep`), and loading says so in one line.
+images keep only the rays that cross the scene box (`training/flip.rays_through_box`), and loading
+says so in one line.
 
 Scene box, from the capture's training frames (held-out frames never shape it), in order of
 preference: the visual hull of the masks; the capture's sparse points
@@ -32,7 +33,7 @@ import numpy as np
 
 from flipviz.data.cameras import Camera, View, looked_at_point
 from flipviz.data.dataset import DatasetError, SceneData
-from flipviz.data.images import composite_on_white
+from flipviz.data.images import composite_on_white, read_rgba
 
 log = logging.getLogger("flipviz.data")
 
@@ -109,6 +110,23 @@ def read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
     return m
 
 
+def capture_view(
+    ipath: Path, mask: Path | None, intr: Intrinsics, c2w: np.ndarray, res: int | None, index: int, listed_in: str
+) -> View:
+    """One frame of a capture: its image (alpha from `mask`, else the image's own) resampled into the
+    flipviz pinhole at width `res`; alpha None when the frame has no mask."""
+    if not ipath.is_file():
+        raise DatasetError(f"image {ipath} listed in {listed_in} not found")
+    rgba = read_rgba(ipath)
+    if mask is not None:
+        rgba[..., 3] = read_mask(mask, rgba.shape[:2])
+    masked = mask is not None or bool((rgba[..., 3] < 1).any())
+    if res is not None and res > rgba.shape[1]:
+        raise DatasetError(f"--res {res} is wider than the images of {ipath.parent} ({rgba.shape[1]} px); flipviz does not upscale")
+    rgb, alpha, focal = to_pinhole(rgba, intr, res)
+    return View(Camera(c2w, rgb.shape[1], rgb.shape[0], focal, name=ipath.stem), rgb, alpha if masked else None, index=index)
+
+
 def hull_box(views: list[View], res: int = HULL_RES) -> np.ndarray | None:
     """Box (2, 3) of the masks' visual hull: voxels inside every silhouette that sees them (>= 2 views)."""
     cams = [v.camera for v in views]
@@ -122,14 +140,9 @@ def hull_box(views: list[View], res: int = HULL_RES) -> np.ndarray | None:
     inside = np.ones(len(pts), bool)
     seen = np.zeros(len(pts), np.int64)
     for v in views:
-        c = v.camera
-        p = (pts - c.center) @ c.rotation  # camera frame (OpenGL: looks along -z)
-        z = -p[:, 2]
-        u = c.focal * p[:, 0] / np.maximum(z, 1e-9) + c.width / 2
-        r = -c.focal * p[:, 1] / np.maximum(z, 1e-9) + c.height / 2
-        vis = (z > 1e-6) & (u >= 0) & (u < c.width) & (r >= 0) & (r < c.height)
+        r, u, vis = v.camera.project(pts)
         m = np.zeros(len(pts), bool)
-        m[vis] = v.alpha[r[vis].astype(int), u[vis].astype(int)] > 0.5
+        m[vis] = v.alpha[r[vis], u[vis]] > 0.5
         inside &= m | ~vis
         seen += vis
     keep = pts[inside & (seen >= 2)]
@@ -189,6 +202,9 @@ def make_capture(
     if not views:
         raise DatasetError(f"{source}: no frames")
     vs = list(views.values())
+    sizes = {v.rgb.shape[:2] for v in vs}
+    if len(sizes) > 1:
+        raise DatasetError(f"{source}: images have different sizes {sorted(sizes)}; flipviz needs one size")
     masked = all(v.alpha is not None for v in vs)
     placing = [views[i] for i in splits.get("train", sorted(views))]  # the held-out frames never shape the box
     box, box_from = None, ""

@@ -15,10 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from flipviz.data.capture import Intrinsics, make_capture, read_mask, to_pinhole
-from flipviz.data.cameras import Camera, View
+from flipviz.data.capture import Intrinsics, capture_view, make_capture
+from flipviz.data.cameras import View
 from flipviz.data.dataset import DatasetError, SceneData
-from flipviz.data.images import read_rgba
 
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
 MODEL_FILES = ("cameras.bin", "cameras.txt")
@@ -69,24 +68,11 @@ def load_colmap(path: str | os.PathLike, res: int | None = None, images: str = "
     image_dir = root / images
     views: dict[int, View] = {}
     for k, (name, im) in enumerate(registered):
-        ipath = image_dir / name
-        if not ipath.is_file():
-            raise DatasetError(f"image {ipath} of the COLMAP model not found")
-        rgba = read_rgba(ipath)
-        mpath = next((p for p in (root / "masks" / name, (root / "masks" / name).with_suffix(".png")) if p.is_file()), None)
-        if mpath is not None:
-            rgba[..., 3] = read_mask(mpath, rgba.shape[:2])
-        has_mask = mpath is not None or bool((rgba[..., 3] < 1).any())
-        if res is not None and res > rgba.shape[1]:
-            raise DatasetError(f"--res {res} is wider than the images of {root} ({rgba.shape[1]} px); flipviz does not upscale")
+        mask = next((p for p in (root / "masks" / name, (root / "masks" / name).with_suffix(".png")) if p.is_file()), None)
         intr = _intrinsics(rec.cameras[im.camera_id], f"{model_dir} camera {im.camera_id}")
-        rgb, alpha, focal = to_pinhole(rgba, intr, res)
         w2c = np.eye(4)
         w2c[:3] = im.cam_from_world().matrix()
         c2w = np.linalg.inv(w2c) @ OPENCV_TO_OPENGL
-        views[k] = View(Camera(c2w, rgb.shape[1], rgb.shape[0], focal, name=Path(name).stem), rgb, alpha if has_mask else None, index=k)
-    sizes = {v.rgb.shape[:2] for v in views.values()}
-    if len(sizes) > 1:
-        raise DatasetError(f"{root}: images have different sizes {sorted(sizes)}; flipviz needs one size")
+        views[k] = capture_view(image_dir / name, mask, intr, c2w, res, k, f"the COLMAP model {model_dir}")
     points = np.array([p.xyz for p in rec.points3D.values()]) if rec.num_points3D() else None
     return make_capture(root.name, views, str(root), {}, points, None, {"format": "colmap", "model": str(model_dir)})

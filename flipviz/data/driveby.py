@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flipviz.data.builtin import CAMERA_ANGLE_X, render_view
+from flipviz.data.builtin import focal_px, render_view, ring_camera
 from flipviz.data.cameras import Camera, View, look_at
 from flipviz.data.nerfstudio import write_nerfstudio
 from flipviz.data.scenes import symmetry_plane
@@ -37,7 +37,6 @@ def _roll(c2w: np.ndarray, deg: float) -> np.ndarray:
 
 def driveby_cameras(res: int, n: int = N_DRIVE) -> list[Camera]:
     """The robot's cameras (module docstring), at res x res."""
-    focal = 0.5 * res / np.tan(0.5 * CAMERA_ANGLE_X)
     s = np.linspace(0.0, 1.0, n)
     cams = []
     for k, t in enumerate(s):
@@ -47,21 +46,13 @@ def driveby_cameras(res: int, n: int = N_DRIVE) -> list[Camera]:
         eye = np.array([dist * np.cos(np.radians(az)), dist * np.sin(np.radians(az)), height])
         target = np.array([0.15 * np.sin(5.0 * t), 0.15 * np.cos(4.0 * t), 0.1 * np.sin(7.0 * t)])  # aims roughly
         c2w = _roll(look_at(eye, target), 4.0 * np.sin(6.0 * t))
-        cams.append(Camera(c2w, res, res, float(focal), name=f"drive_{k:02d}"))
+        cams.append(Camera(c2w, res, res, focal_px(res), name=f"drive_{k:02d}"))
     return cams
 
 
 def held_out_cameras(res: int, n: int = N_HELD) -> list[Camera]:
-    """Views of the far side (azimuths beyond the sweep), radius 4, 30 degrees up, at the centre."""
-    focal = 0.5 * res / np.tan(0.5 * CAMERA_ANGLE_X)
-    el = np.radians(30.0)
-    cams = []
-    for k in range(n):
-        az = START_DEG + SWEEP_DEG + (360.0 - SWEEP_DEG) * (k + 0.5) / n
-        a = np.radians(az)
-        eye = 4.0 * np.array([np.cos(el) * np.cos(a), np.cos(el) * np.sin(a), np.sin(el)])
-        cams.append(Camera(look_at(eye, np.zeros(3)), res, res, float(focal), name=f"far_{k}"))
-    return cams
+    """Views of the far side (azimuths beyond the sweep) from the orbit's ring, at the centre."""
+    return [ring_camera(START_DEG + SWEEP_DEG + (360.0 - SWEEP_DEG) * (k + 0.5) / n, res, f"far_{k}") for k in range(n)]
 
 
 def export_driveby(name: str, out_dir: str | os.PathLike, res: int = 100) -> Path:

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from flipviz.data.capture import Intrinsics, make_capture, read_mask, to_pinhole
-from flipviz.data.cameras import Camera, View
+from flipviz.data.capture import Intrinsics, capture_view, make_capture
+from flipviz.data.cameras import View
 from flipviz.data.dataset import DatasetError, Plane, SceneData, camera_to_world, check_resolution, read_transforms
-from flipviz.data.images import read_rgba, save_rgba_png, uncomposite
+from flipviz.data.images import save_rgba_png, uncomposite
 from flipviz.files import write_json
 
 MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
@@ -87,23 +87,9 @@ def load_nerfstudio(path: str | os.PathLike, res: int | None = None) -> SceneDat
     views: dict[int, View] = {}
     by_file: dict[str, int] = {}
     for k, (file_path, c2w, intr, mask_path) in enumerate(entries):
-        ipath = root / file_path
-        if not ipath.is_file():
-            raise DatasetError(f"image {ipath} listed in {jpath.name} not found")
-        rgba = read_rgba(ipath)
-        has_mask = mask_path is not None or rgba.shape[2] == 4 and bool((rgba[..., 3] < 1).any())
-        if mask_path is not None:
-            rgba[..., 3] = read_mask(root / str(mask_path), rgba.shape[:2])
-        if res is not None and res > rgba.shape[1]:
-            raise DatasetError(f"--res {res} is wider than the images of {root} ({rgba.shape[1]} px); flipviz does not upscale")
-        rgb, alpha, focal = to_pinhole(rgba, intr, res)
-        H, W = rgb.shape[:2]
-        name = Path(file_path).stem
-        views[k] = View(Camera(c2w, W, H, focal, name=name), rgb, alpha if has_mask else None, index=k)
+        mask = root / str(mask_path) if mask_path is not None else None
+        views[k] = capture_view(root / file_path, mask, intr, c2w, res, k, jpath.name)
         by_file[file_path] = by_file[file_path.lstrip("./")] = k
-    sizes = {v.rgb.shape[:2] for v in views.values()}
-    if len(sizes) > 1:
-        raise DatasetError(f"{jpath}: frames have different sizes {sorted(sizes)}; flipviz needs one size")
 
     splits: dict[str, list[int]] = {}
     for split in ("train", "test"):

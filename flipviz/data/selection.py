@@ -18,7 +18,7 @@ import re
 
 import numpy as np
 
-from flipviz.data.cameras import horizontal_basis
+from flipviz.data.cameras import azimuth_deg
 from flipviz.data.dataset import DatasetError, SceneData
 from flipviz.data.protocol import Split
 
@@ -26,12 +26,10 @@ AZIMUTH = re.compile(r"^az:\s*(-?\d+(?:\.\d*)?)\s*\.\.\s*(-?\d+(?:\.\d*)?)$")
 USAGE = "use '', 'all', indices like '0,3,5-9', or an azimuth range like 'az:-60..120'"
 
 
-def azimuth_deg(scene: SceneData, point: np.ndarray) -> float:
+def camera_azimuth(scene: SceneData, point: np.ndarray) -> float:
     """Azimuth (degrees, [0, 360)) of `point` around the scene's centre and up axis (module docstring)."""
-    u, v = horizontal_basis(scene.up)
     center = scene.center if scene.center is not None else scene.bbox.mean(0)
-    d = np.asarray(point, dtype=np.float64) - center
-    return float(np.degrees(np.arctan2(d @ v, d @ u)) % 360.0)
+    return azimuth_deg(np.asarray(point, dtype=np.float64) - center, scene.up)
 
 
 def _indices(spec: str, available: list[int]) -> list[int]:
@@ -59,7 +57,7 @@ def input_frames(scene: SceneData, spec: str) -> list[int]:
     if m:
         lo, hi = (float(x) % 360.0 for x in m.groups())
         inside = lambda a: lo <= a <= hi if lo <= hi else a >= lo or a <= hi  # noqa: E731 - a range may wrap
-        return [i for i in frames if inside(azimuth_deg(scene, scene.views[i].camera.center))]
+        return [i for i in frames if inside(camera_azimuth(scene, scene.views[i].camera.center))]
     return _indices(spec, frames)
 
 
@@ -68,6 +66,6 @@ def select_split(scene: SceneData, spec: str) -> Split:
     inputs = input_frames(scene, spec)
     if len(inputs) < 4:
         raise DatasetError(f"--inputs {spec!r} chooses {len(inputs)} frame(s); a run needs at least 4 (the camera sphere)")
-    held = scene.splits.get("test", sorted(scene.views))
-    tests = [i for i in held if i not in set(inputs)]
+    chosen = set(inputs)
+    tests = [i for i in scene.splits.get("test", sorted(scene.views)) if i not in chosen]
     return Split(0, [scene.views[i] for i in inputs], [scene.views[i] for i in tests], [])

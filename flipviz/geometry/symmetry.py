@@ -5,7 +5,7 @@ over the scene box: per voxel whether it holds seen surface (`surface`) and whet
 camera saw it (`seen`: in front of, or just behind, the first surface along some input ray). S is
 reflected through a candidate plane; where a reflected point lands in seen space, a symmetric
 object has surface there too. Unseen space (behind the object, where the unobserved side is) is
-no evidence either way. So, with the surface dilated by one voxel and blurred (the plane is
+no evidence either way. So, with the surface dilated by DILATE voxels and blurred (the plane is
 continuous, the voxels are not),
 
     agreement(P) = sum_s seen(R_P s) occ(R_P s) / sum_s seen(R_P s)        (R_P: reflection through P)
@@ -43,7 +43,7 @@ DILATE = 2  # voxels by which the seen surface is dilated before the lookups
 N_HEMISPHERE = 600  # candidate normals on the hemisphere
 N_OFFSETS = 11  # candidate offsets per normal, over +-OFFSET_RANGE of the object's extent
 OFFSET_RANGE = 0.25
-MAX_SURFACE = 4000  # surface voxels used (a random subset of larger sets)
+MAX_SURFACE = 4000  # surface points used (a random subset of larger sets)
 # Confidence at or above which a plane is trusted. Tuned on the untouched built-ins, configurations
 # 1 and 4 (plane_estimate's fit): chair and truck gave 0.27-0.38, mug and lamp 0.09-0.24. The
 # turned scenes, the other configurations and lego are measured by benchmarks/bench_plane.py.
@@ -177,20 +177,21 @@ def search_plane(vol: SymmetryVolume, up: np.ndarray, up_known: bool = True, see
     _, _, score = scorer(N, D)
     per_normal = score.view(len(normals), len(shifts))
 
-    def objective(x: np.ndarray) -> float:
-        n = _normal(x[0], x[1])
-        return -float(scorer(torch.as_tensor(n[None], dtype=torch.float32), torch.tensor([x[2]], dtype=torch.float32))[2])
+    def one(x: np.ndarray) -> tuple[float, float, float]:
+        """agreement, evidence, score of the plane x = (theta, phi, offset)."""
+        n = torch.as_tensor(_normal(x[0], x[1])[None], dtype=torch.float32)
+        return tuple(float(t) for t in scorer(n, torch.tensor([x[2]], dtype=torch.float32)))  # type: ignore[return-value]
 
     best_x, best = None, np.inf
     for k in torch.topk(score, 3).indices.tolist():
         n = normals[k // len(shifts)]
         x0 = np.array([np.arccos(np.clip(n[2], -1, 1)), np.arctan2(n[1], n[0]), float(D[k])])
         simplex = np.vstack([x0, x0 + np.diag([0.05, 0.05, 0.02 * extent])])  # 3 degrees, 2 % of the extent
-        res = minimize(objective, x0, method="Nelder-Mead", options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-5, "maxfev": 200})
+        res = minimize(lambda x: -one(x)[2], x0, method="Nelder-Mead", options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-5, "maxfev": 200})
         if res.fun < best:
             best, best_x = float(res.fun), res.x
     n = _normal(best_x[0], best_x[1])
-    a, e, s = (float(t) for t in scorer(torch.as_tensor(n[None], dtype=torch.float32), torch.tensor([best_x[2]], dtype=torch.float32)))
+    a, e, s = one(best_x)
     profile = per_normal[: len(az)].max(1).values
     s_med = float(profile.median())
     confidence = float(np.clip((s - s_med) / max(1.0 - s_med, 1e-6), 0.0, 1.0))

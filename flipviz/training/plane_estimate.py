@@ -56,13 +56,9 @@ def symmetry_volume(model: RadianceModel, inputs: list[View], box: np.ndarray, r
         o, d = cam.rays()
         surface.append(o[hit] + out["depth"].reshape(-1)[hit, None] * d[hit])
         depth = np.where(out["opacity"] > 0.5, out["depth"], np.inf)  # a ray that hits nothing sees all of it
-        p = (lattice - cam.center) @ cam.rotation  # camera frame, looking along -z
-        z = -p[:, 2]
-        u = cam.focal * p[:, 0] / np.maximum(z, 1e-9) + cam.width / 2
-        r = -cam.focal * p[:, 1] / np.maximum(z, 1e-9) + cam.height / 2
-        vis = (z > 1e-6) & (u >= 0) & (u < cam.width) & (r >= 0) & (r < cam.height)
+        r, u, vis = cam.project(lattice)
         dist = np.linalg.norm(lattice[vis] - cam.center, axis=1)
-        seen[np.flatnonzero(vis)[dist <= depth[r[vis].astype(int), u[vis].astype(int)] + 2.0 * cell.max()]] = True
+        seen[np.flatnonzero(vis)[dist <= depth[r[vis], u[vis]] + 2.0 * cell.max()]] = True
     pts = np.concatenate(surface)
     pts = pts[np.all((pts >= box[0]) & (pts <= box[1]), axis=1)]
     idx = np.clip(np.round((pts - box[0]) / cell).astype(int), 0, res - 1)

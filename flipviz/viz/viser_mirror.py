@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 import viser
 
-from flipviz.data.cameras import WORLD_UP, Camera, horizontal_basis
+from flipviz.data.cameras import WORLD_UP, Camera, azimuth_deg, horizontal_basis
 from flipviz.data.dataset import Plane
 from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
 from flipviz.geometry.sphere import Sphere
@@ -67,8 +67,7 @@ def score_chart(est: PlaneEstimate, up: np.ndarray, size: tuple[int, int] = (400
     fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
     ax = fig.add_subplot()
     ax.plot(est.azimuth_deg, est.azimuth_score, color=palette.hex_color(palette.MIRROR_PLANE), lw=1.8)
-    u, v = horizontal_basis(up)
-    az = float(np.degrees(np.arctan2(est.plane.normal @ v, est.plane.normal @ u)) % 180.0)
+    az = azimuth_deg(est.plane.normal, up) % 180.0  # a normal and its negative are one plane
     ax.axvline(az, color="0.3", ls="--", lw=1)
     ax.set(xlabel="normal azimuth about up (deg)", ylabel="score", xlim=(0, 180))
     ax.set_title(f"estimate at {az:.1f} deg, confidence {est.confidence:.2f}", fontsize=9)
