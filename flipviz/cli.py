@@ -5,6 +5,9 @@
     flipviz bench --scenes chair,lego --data-root path/to/nerf_synthetic
     flipviz export-scene chair out/chair
     flipviz export-scene chair-turned out/drive --trajectory driveby
+    flipviz video RUN [RUN_B] --path unobserved|orbit|keyframes.json [--gif out.gif]
+    flipviz compare RUN_A RUN_B [--serve]     (their Rerun recordings side by side)
+    flipviz report RUN                         (a self-contained HTML page of the run)
 """
 
 from __future__ import annotations
@@ -101,10 +104,15 @@ def _export(cmd: ExportScene) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     from flipviz.bench import BenchConfig
+    from flipviz.viz.html_report import ReportConfig
+    from flipviz.viz.rerun_compare import CompareConfig
+    from flipviz.viz.video import VideoConfig
     from flipviz.viz.viser_app import AppConfig
 
+    commands = {"train": TrainConfig, "app": AppConfig, "bench": BenchConfig, "export-scene": ExportScene,
+                "video": VideoConfig, "compare": CompareConfig, "report": ReportConfig}  # fmt: skip
     cmd = tyro.extras.subcommand_cli_from_dict(
-        {"train": TrainConfig, "app": AppConfig, "bench": BenchConfig, "export-scene": ExportScene},
+        commands,
         args=argv,
         description=__doc__,
     )
@@ -113,6 +121,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def _dispatch(cmd) -> int:
     from flipviz.bench import BenchConfig, run_bench
+    from flipviz.viz.html_report import ReportConfig, write_run_report
+    from flipviz.viz.rerun_compare import CompareConfig, run_compare
+    from flipviz.viz.video import VideoConfig
     from flipviz.viz.viser_app import AppConfig, run_app
 
     if isinstance(cmd, AppConfig):  # AppConfig extends TrainConfig: test it first
@@ -123,7 +134,22 @@ def _dispatch(cmd) -> int:
     if isinstance(cmd, BenchConfig):
         print(f"results: {run_bench(cmd)}")
         return 0
+    if isinstance(cmd, VideoConfig):
+        return _video(cmd)
+    if isinstance(cmd, CompareConfig):
+        return run_compare(cmd)
+    if isinstance(cmd, ReportConfig):
+        print(f"wrote {write_run_report(cmd)} (self-contained: open it in any browser, offline)")
+        return 0
     return _export(cmd)
+
+
+def _video(cmd) -> int:
+    from flipviz.viz.video import make_video
+
+    mp4, gif = make_video(cmd)
+    print(f"wrote {mp4}" + (f" and {gif}" if gif else ""))
+    return 0
 
 
 class Interrupted(KeyboardInterrupt):

@@ -24,6 +24,7 @@ from flipviz.bench.runner import resolve_scene
 from flipviz.bench.tables import render_markdown
 from flipviz.data.dataset import DatasetError
 from flipviz.training.config import TrainConfig
+from test_exports import parse_page
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -59,6 +60,8 @@ def _check_outputs(out: Path, n_runs: int) -> list[dict]:
     assert chart.ndim == 3 and chart.shape[0] > 100
     grid = plt.imread(str(out / "grid_chair.png"))
     assert grid.ndim == 3 and grid.shape[0] > 100
+    tags = parse_page(out / "report.html")  # the same, as one offline page: tables, chart, grid
+    assert [t for t, _ in tags].count("table") >= 2 and len([a for t, a in tags if t == "img"]) == 2
     return rows
 
 
@@ -126,7 +129,7 @@ def test_bench_resumes_after_kill_and_records_failures(tmp_path: Path, cache: Pa
     assert {r["status"] for r in rows if r["scene"] == "broken"} == {"failed"}
     assert "## Failed runs" in (out / "table.md").read_text()
     # The reports can be rebuilt from the run folders alone, without training.
-    for f in ("results.csv", "results.json", "table.md", "psnr_chart.png", "grid_chair.png"):
+    for f in ("results.csv", "results.json", "table.md", "psnr_chart.png", "grid_chair.png", "report.html"):
         (out / f).unlink()
     run_bench(BenchConfig(methods="bl,flip+u", configs="1,2", steps=30, out=out, report_only=True))
     _check_outputs(out, 8)

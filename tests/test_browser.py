@@ -173,7 +173,7 @@ def test_4_beta2_with_its_colour_bar(app, browser):
 def test_5_move_the_plane_and_score_it(app, browser):
     tab(browser, "Mirror")
     checkbox(browser, "Show plane gizmo", True)
-    assert app.mirror.gizmo.visible
+    wait_until(lambda: app.mirror.gizmo.visible, 20, what="the plane gizmo")  # the click reaches the server async
     el = by_label(browser, "Vertical plane azimuth")
     browser.execute_script("arguments[0].scrollIntoView({block: 'center'});", el)
     # the slider's number box: type 40 degrees

@@ -6,8 +6,10 @@ configurations of each scene.
 
 from __future__ import annotations
 
-METHOD_ORDER: tuple[str, ...] = ("bl", "bl+u", "flip", "flip+u", "upper")
-METHOD_LABELS: dict[str, str] = {"bl": "B/L", "bl+u": "B/L+U", "flip": "Flip", "flip+u": "Flip+U", "upper": "Upper"}
+from flipviz.training.config import METHOD_LABELS, METHODS
+
+METHOD_ORDER: tuple[str, ...] = METHODS
+__all__ = ["METHOD_LABELS", "METHOD_ORDER", "SCENE_ORDER", "TABLE2", "TABLE3"]
 SCENE_ORDER: tuple[str, ...] = ("Chairs", "Lego", "Materials", "Ship", "Drum", "Ficus", "Hotdog", "Mic")
 
 

@@ -19,6 +19,7 @@ from flipviz.bench.config import BenchConfig, parse_configs, parse_list, parse_m
 from flipviz.bench.figures import write_figures
 from flipviz.bench.local import run_local
 from flipviz.bench.ray_cluster import run_ray
+from flipviz.bench.report import write_html_report
 from flipviz.bench.results import ABLATION, RESULT_FILE, read_result
 from flipviz.bench.tables import write_reports
 from flipviz.bench.task import RunTask
@@ -142,6 +143,7 @@ def run_bench(cfg: BenchConfig) -> Path:
             raise UserError(f"--report-only: no results in {out / 'runs'}")
         write_reports(out, rows, cfg)
         write_figures(out, rows, cfg)
+        write_html_report(out, cfg)
         log(f"reports of {len(rows)} runs rebuilt in {out}")
         return out
     specs = plan(cfg)
@@ -208,6 +210,7 @@ def run_bench(cfg: BenchConfig) -> Path:
     rows = [results[k] for k in keys if k in results]
     write_reports(out, rows, cfg)
     write_figures(out, rows, cfg)
+    write_html_report(out, cfg)
     n_ok = sum(r.get("status") == "ok" for r in rows)
     log(f"{n_ok}/{len(specs)} runs ok; reports in {out}", logfile)
     return out

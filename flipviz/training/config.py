@@ -10,6 +10,7 @@ from flipviz.errors import UserError
 
 Method = Literal["bl", "bl+u", "flip", "flip+u", "upper"]
 METHODS: tuple[str, ...] = ("bl", "bl+u", "flip", "flip+u", "upper")
+METHOD_LABELS: dict[str, str] = {"bl": "B/L", "bl+u": "B/L+U", "flip": "Flip", "flip+u": "Flip+U", "upper": "Upper"}
 
 
 def check_device(device: str) -> None:

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Iterable
 
 from flipviz.data.dataset import SceneData
-from flipviz.training.checkpoint import CHECKPOINT_NAME
+from flipviz.errors import UserError
+from flipviz.training.checkpoint import CHECKPOINT_NAME, checkpoint_path, load_checkpoint
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import Observer
 from flipviz.training.trainer import Trainer
@@ -34,3 +35,30 @@ def train(cfg: TrainConfig, observers: Iterable[Observer] = (), resume_unfinishe
     for obs in observers:
         trainer.add_observer(obs)
     return trainer, trainer.run()  # KeyboardInterrupt inside the loop ends it with status "stopped"
+
+
+def run_config(settings: dict) -> TrainConfig:
+    """A run's TrainConfig from its settings as saved (checkpoint["config"], metrics.json's "settings")."""
+    names = {f.name for f in fields(TrainConfig)}
+    kw = {k: v for k, v in settings.items() if k in names}
+    for k in ("data", "out", "rrd", "resume"):
+        if kw.get(k) is not None:
+            kw[k] = Path(kw[k])
+    if kw.get("grid_res") is not None:
+        kw["grid_res"] = tuple(kw["grid_res"])
+    return TrainConfig(**kw)
+
+
+def open_run(run: Path | str, device: str | None = None, scene: SceneData | None = None) -> Trainer:
+    """A run folder (or its checkpoint.pt) read back to render, as it was when it ended: its config,
+    its scene, its model and its refined poses. Nothing in the folder is written or locked, so a run
+    that another process is training can be opened too (at its last checkpoint)."""
+    try:
+        path = checkpoint_path(run)
+    except FileNotFoundError:
+        raise UserError(f"{run} is not a run folder with a checkpoint (bench runs keep theirs with --keep-checkpoints)") from None
+    cfg = run_config(load_checkpoint(path)["config"])
+    cfg = replace(cfg, resume=path, out=path.parent, device=device or cfg.device, no_rrd=True)
+    if cfg.data is not None and not Path(cfg.data).exists():
+        raise UserError(f"{path.parent} was trained on {cfg.data}, which is not found from here")
+    return Trainer(cfg, scene, read_only=True)

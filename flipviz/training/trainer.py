@@ -72,8 +72,11 @@ def default_run_dir(cfg: TrainConfig) -> Path:
 
 
 class Trainer:
-    def __init__(self, cfg: TrainConfig, scene: SceneData | None = None) -> None:
+    def __init__(self, cfg: TrainConfig, scene: SceneData | None = None, read_only: bool = False) -> None:
+        """`read_only`: a finished run opened to render (`run.open_run`): its folder is neither locked
+        nor written, and `run()` refuses."""
         self.cfg = cfg.validate()
+        self.read_only = read_only
         torch.manual_seed(cfg.seed)
         self._gen = torch.Generator().manual_seed(cfg.seed)
         self.scene = scene if scene is not None else load_scene_for(cfg)
@@ -86,8 +89,8 @@ class Trainer:
         self.opt_field = self.model.make_optimizer()
         self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
         self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
-        self._lock_file = FolderLock(self.run_dir)  # the run folder, created and ours until run() ends
-        if self.plane_estimate is not None:
+        self._lock_file = None if read_only else FolderLock(self.run_dir)  # the run folder, ours until run() ends
+        if self.plane_estimate is not None and not read_only:
             artifacts.write_plane(self.run_dir, self.plane_estimate)
         self.step = 0
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
@@ -191,6 +194,8 @@ class Trainer:
     def run(self) -> dict:
         """Train to cfg.steps (or until stopped / NaN); returns the final metrics."""
         cfg = self.cfg
+        if self.read_only:
+            raise RuntimeError("a run opened read-only (open_run) renders; it does not train")
         self._emit("on_setup", self.setup_event)
         status, message = "finished", ""
         try:
