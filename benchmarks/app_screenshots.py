@@ -6,6 +6,8 @@
 2. app_snapped.png: snapped to an unobserved test view, ground truth and render blended half-half;
 3. app_mirror.png: the mug, its mirrored frustums coloured by their scores and showing where the
    flipped images disagree with the model;
+5. app_compare.png: the Compare tab, the chair's Flip+U (A, training) split against a finished B/L
+   run (B) from an unobserved test view, both scored;
 4. app_capture.png: a robot's drive-by capture of the turned chair (`export-scene --trajectory
    driveby`) trained with `--mirror-plane auto`: the Mirror tab's estimated plane, its confidence
    and the score-against-azimuth chart.
@@ -34,8 +36,8 @@ class Args:
     out: Path = ROOT / "assets"
     steps_before: int = 700
     """Training steps before the first screenshot."""
-    shots: str = "orbit,capture"
-    """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png."""
+    shots: str = "orbit,capture,compare"
+    """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png; compare: app_compare.png."""
 
 
 def main(args: Args) -> None:
@@ -44,6 +46,8 @@ def main(args: Args) -> None:
         orbit_shots(args)
     if "capture" in args.shots:
         capture_shot(args)
+    if "compare" in args.shots:
+        compare_shot(args)
     print(f"screenshots in {args.out}")
 
 
@@ -67,6 +71,43 @@ def capture_shot(args: Args) -> None:
             d.execute_script("arguments[0].scrollIntoView({block: 'start'});", folder[0])
             time.sleep(3.0)
             d.save_screenshot(str(args.out / "app_capture.png"))
+    finally:
+        app.stop()
+
+
+def compare_shot(args: Args) -> None:
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.run import train
+
+    b_dir = Path(tempfile.mkdtemp()) / "chair-bl"
+    train(TrainConfig(scene="chair", method="bl", out=b_dir, no_rrd=True))
+    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100, steps=600)
+    app = App(cfg).start()
+    try:
+        wait_until(lambda: app.status == "finished", 900, what="training A")
+        with chromium() as d:
+            d.get(f"http://127.0.0.1:{app.port}")
+            wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
+            time.sleep(5.0)
+            for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
+                toast.click()
+            tab(d, "Mirror")
+            checkbox(d, "Show plane preview", False)
+            checkbox(d, "Show mirror plane", False)
+            tab(d, "Show")
+            checkbox(d, "true symmetry plane", False)
+            tab(d, "Views")
+            key = next(k for k in app.snap.views if k.startswith("test 3"))
+            choose(d, "View", key)
+            button(d, "Snap to view")
+            time.sleep(2.0)
+            tab(d, "Compare")
+            d.find_element("xpath", "//label[normalize-space()='Or a folder']/following::input[1]").send_keys(str(b_dir))
+            time.sleep(0.5)
+            button(d, "Load run B")
+            wait_until(lambda: app.compare.b is not None and app.compare.scores, 120, what="run B and its scores")
+            time.sleep(20.0)  # the finest pass renders A and B
+            d.save_screenshot(str(args.out / "app_compare.png"))
     finally:
         app.stop()
 

@@ -17,6 +17,7 @@ import tyro
 from flipviz.data.dataset import Plane
 from flipviz.geometry import mirror_cameras_for_plane
 from flipviz.geometry.sphere import Sphere
+from flipviz.training.config import TrainConfig
 from flipviz.viz.viser_app import App, AppConfig, train_config
 from flipviz.viz.viser_common import (
     c2w_from_viser,
@@ -284,6 +285,89 @@ def test_two_tabs_and_snap_to_view(app):
     before, ids = set(app.views.clients), set()
     run(go())
     assert (ids - before).isdisjoint(app.views.clients)  # both tabs' state was dropped on disconnect
+
+
+def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
+    """The Compare tab: a finished run B beside the running A, through the real websocket protocol."""
+    from flipviz.training.run import open_run, train
+
+    b_cfg = TrainConfig(scene="chair", method="bl", res=32, steps=40, batch_rays=256, n_samples=32, grid_res=(16, 24),
+                        mirror_plane="official", images_every=0, out=tmp_path / "b")  # fmt: skip
+    train(b_cfg)
+    b = open_run(tmp_path / "b")
+    pos, size = (4.0, -4.0, 3.0), (96, 128)
+
+    def b_render() -> np.ndarray:  # B from the client's camera, as the app renders it
+        from viser_client import wxyz_look_at
+
+        cam = camera_from_viser(wxyz_look_at(np.array(pos), np.zeros(3)), pos, 0.9, size[1], size[0])
+        return np.clip(b.render(cam, ("rgb",))["rgb"], 0, 1) * 255
+
+    def psnr(x, y) -> float:
+        return float(10 * np.log10(255.0**2 / np.mean((np.asarray(x, float) - np.asarray(y, float)) ** 2)))
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera(pos)
+            await c.wait_gui("Load run B")
+            await c.set_value("Or a folder", str(tmp_path / "b"))
+            await asyncio.sleep(0.2)
+            n = len(c.messages)
+            await c.click("Load run B")
+            t = time.monotonic()
+            while app.compare.b is None:
+                assert time.monotonic() - t < 60, app.compare.status_md.content
+                await asyncio.sleep(0.1)
+            bg = lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"]  # noqa: E731
+            await asyncio.sleep(1.0)  # B is on: the views are asked again (a render of A alone may still arrive)
+            n = len(c.messages)
+            await c.set_value("Divider", 0.5)
+            img = jpeg((await c.wait_for(bg, start=n, timeout=30))["rgb_data"])[..., ::-1]
+            assert img.shape[:2] == size and app.compare.mode_dd.value == "split"
+            ref = b_render()
+            body = slice(size[0] // 3, size[0])  # below the A / B labels
+            left, right = slice(0, size[1] // 2 - 2), slice(size[1] // 2 + 2, size[1])
+            assert psnr(img[body, right], ref[body, right]) > 28  # B right of the divider
+            assert psnr(img[body, left], ref[body, left]) < psnr(img[body, right], ref[body, right]) - 3  # A left of it
+            # the divider moves to a quarter of the width: a white line there
+            n = len(c.messages)
+            await c.set_value("Divider", 0.25)
+            img = jpeg((await c.wait_for(bg, start=n, timeout=30))["rgb_data"])[..., ::-1]
+            x = round(0.25 * size[1])
+            assert img[body, x - 1 : x + 1].min() > 230 and psnr(img[body, x + 2 :], ref[body, x + 2 :]) > 28
+            # difference: |A - B| on the error scale; where both show the white background it is 0 (viridis' dark end)
+            n = len(c.messages)
+            await c.set_value("Show", "difference")
+            img = jpeg((await c.wait_for(bg, start=n, timeout=30))["rgb_data"])[..., ::-1].astype(int)
+            assert np.abs(img[-8:, -8:] - np.array(palette_dark)).max() < 25
+            # snapped to a test view: both runs scored against its ground truth
+            key = next(k for k in app.snap.views if k.startswith("test"))
+            await c.set_value("View", key)
+            await asyncio.sleep(0.2)
+            await c.click("Snap to view")
+            cam = app.snap.views[key][2]
+            wxyz, p = to_viser_pose(cam.c2w)  # as a browser does, this client reports the camera it was moved to
+            await c.send("ViewerCameraMessage", wxyz=tuple(map(float, wxyz)), position=tuple(map(float, p)), fov=cam.fov_y,
+                         near=0.01, far=100.0, image_height=480, image_width=640, look_at=(0.0, 0.0, 0.0),
+                         up_direction=(0.0, 0.0, 1.0))  # fmt: skip
+            name = key
+            t = time.monotonic()
+            while name not in app.compare.scores:
+                assert time.monotonic() - t < 30, "no A/B scores of the snapped view"
+                await asyncio.sleep(0.2)
+            await c.set_value("Show", "off")
+            await asyncio.sleep(0.3)
+
+    from flipviz.viz import palette
+
+    palette_dark = palette.colormap(np.zeros((1, 1)), *palette.ERROR_RANGE)[0, 0]
+    run(go())
+    metrics = __import__("json").loads((tmp_path / "b" / "metrics.json").read_text())
+    key = next(iter(app.compare.scores))
+    b_psnr = next(v["psnr"] for v in metrics["per_view"] if v["name"] == app.snap.views[key][2].name)
+    assert app.compare.scores[key][1] == pytest.approx(b_psnr, abs=1e-3)  # B's score is B's own metric
+    assert f"PSNR A" in app.compare.status_md.content
+    app.compare.stop()
 
 
 def test_restart_with_another_method(app):

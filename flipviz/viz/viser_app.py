@@ -39,6 +39,7 @@ from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent,
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
 from flipviz.viz.viser_common import plane_to_arg
+from flipviz.viz.viser_compare import ComparePanel, finished_runs
 from flipviz.viz.viser_mirror import MirrorLesson
 from flipviz.viz.viser_novel import NovelCameras, SnapToView
 from flipviz.viz.viser_preview import LivePreview
@@ -166,7 +167,7 @@ class App(Observer):
         self.views = ViewportRenderer(
             self.worker, self.render, lambda: self.status == "running", preview_shown=lambda: self.preview.on,
             depth_range=self._depth_range, max_width=cfg.view_width, on_unsnap=self.scene.unhide,
-            show_preview=self.preview.set_visible,
+            show_preview=self.preview.set_visible, compare=self.compare.compose,
         )  # fmt: skip
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
@@ -186,6 +187,11 @@ class App(Observer):
                 self.novel = NovelCameras(self.server, self.worker, self)
         with tabs.add_tab("Mirror", viser.Icon.FLIP_VERTICAL):
             self.mirror = MirrorLesson(self.server, self.worker, self, self.scene, self.restart_with_plane)
+        with tabs.add_tab("Compare", viser.Icon.LAYOUT_COLUMNS):
+            self.compare = ComparePanel(
+                self.server, self, lambda: train_config(self.cfg), self._run_dir, self._scene, self._run_folders,
+                on_change=lambda: self.views.request_all(),
+            )  # fmt: skip
         with tabs.add_tab("Show", viser.Icon.EYE):
             gui.add_markdown("**Colours**\n\n" + "\n".join(f"- {sq} {what}" for sq, what in palette.LEGEND))
             with gui.add_folder("3D preview"):
@@ -225,6 +231,21 @@ class App(Observer):
 
         self.scene.hide_near(cam.center, 0.35 * float(self.setup.sphere_radius) if self.setup else 1.0)
         self.views.snap(client.client_id, Snapped(cam, reference, name))
+
+    def _run_dir(self) -> Path | None:
+        trainer = self.trainer
+        return trainer.run_dir if trainer is not None else None
+
+    def _scene(self) -> SceneData | None:
+        trainer = self.trainer
+        return trainer.scene if trainer is not None else None
+
+    def _run_folders(self) -> list[Path]:
+        """Finished runs the Compare tab offers: under runs/, beside this app's run folders, and in them."""
+        roots = {Path("runs")} | {d.parent for d in self.run_dirs}
+        if self._base_out is not None:
+            roots.add(Path(self._base_out).parent)
+        return finished_runs(sorted(roots))
 
     def _bake(self) -> dict | None:
         trainer = self.trainer
@@ -333,6 +354,7 @@ class App(Observer):
             self.mirror.clear()
             self.preview.clear()
             self.novel.reset()
+            self.compare.clear()
             with self._ev_lock:
                 self.setup, self._last_step, self._test_psnr, self.mirror_c2w = None, None, None, None
                 self._hist_step, self._hist_psnr = [], []
@@ -344,6 +366,7 @@ class App(Observer):
         self._closing.set()
         with self._run_lock:
             self._stop_run()
+        self.compare.stop()
         self.worker.stop()
         if self._ui_thread.is_alive():
             self._ui_thread.join(timeout=5.0)
@@ -416,6 +439,7 @@ class App(Observer):
                     with self._ev_lock:
                         hist = (list(self._hist_step), list(self._hist_psnr))
                     self.train.set_plot(*hist)
+                    self.compare.show_status()
                     last_plot = now
                 if images is not None:
                     self.mirror.on_images(images)

@@ -91,6 +91,7 @@ class MirrorLesson:
         self.plane_text = gui.add_markdown("_No run yet._")
         self.show_gizmo = gui.add_checkbox("Show plane gizmo", False, hint="Drag its arrows and rings to move the plane")
         self.show_preview = gui.add_checkbox("Show plane preview", True)
+        self.show_plane = gui.add_checkbox("Show mirror plane", True, hint="The translucent square of the plane")
         with gui.add_folder("Type the plane"):
             self.azimuth = gui.add_slider("Vertical plane azimuth", -180.0, 180.0, 1.0, 0.0,
                                           hint="Normal (cos a, sin a, 0), through the sphere centre")  # fmt: skip
@@ -133,6 +134,7 @@ class MirrorLesson:
         self.restart_btn.on_click(lambda _: self.restart())
         self.show_preview.on_update(lambda _: self._set_preview_visible())
         self.show_gizmo.on_update(lambda _: self._set_gizmo_visible())
+        self.show_plane.on_update(lambda _: self._set_gizmo_visible())
         self.azimuth.on_update(lambda _: self._typed_azimuth())
         self.apply_btn.on_click(lambda _: self._typed_plane())
         self.frustum_shows.on_update(lambda _: self._show_frustum_images())
@@ -167,7 +169,7 @@ class MirrorLesson:
             v, f = plane_quad(0.55 * r)
             self.quad = scene.add_mesh_simple(
                 "/mirror_plane", v, f, color=palette.MIRROR_PLANE, opacity=0.18, side="double", cast_shadow=False,
-                receive_shadow=False, wxyz=plane_wxyz(plane), position=plane.point,
+                receive_shadow=False, wxyz=plane_wxyz(plane), position=plane.point, visible=bool(self.show_plane.value),
             )  # fmt: skip
             self.preview, self.preview_frame = [], None
             self.trains_mirrors = setup.plane is not None
@@ -194,6 +196,8 @@ class MirrorLesson:
     def _set_gizmo_visible(self) -> None:
         if self.gizmo is not None:
             self.gizmo.visible = bool(self.show_gizmo.value)
+        if self.quad is not None:
+            self.quad.visible = bool(self.show_plane.value)
 
     def _typed_azimuth(self) -> None:
         if self.sphere is not None:

@@ -187,6 +187,7 @@ class ViewportRenderer:
         refresh_s: float = 5.0,
         on_unsnap: Callable[[], None] = lambda: None,
         show_preview: Callable[[int, bool], None] = lambda client_id, visible: None,
+        compare: Callable[[Camera, dict, Snapped | None], tuple[np.ndarray, tuple | None] | None] = lambda c, o, s: None,
     ) -> None:
         self.worker = worker
         self.render = render  # (camera, outputs) -> dict or None when no model is ready
@@ -194,6 +195,7 @@ class ViewportRenderer:
         self.max_width = int(max_width)
         self.settle_s, self.refresh_s = float(settle_s), float(refresh_s)
         self.on_unsnap, self.show_preview = on_unsnap, show_preview
+        self.compare = compare  # the Compare tab's view of A and B, when it is on (viser_compare.py)
         self.clients: dict[int, ClientView] = {}
         self._lock = threading.Lock()
         self._gui_lock = threading.Lock()
@@ -334,8 +336,9 @@ class ViewportRenderer:
         out = self.render(cam, outputs=("rgb", "depth", "opacity", "beta2"))
         if out is None or view.version != version or client_id not in self.clients:
             return
-        image, bar = self._compose(view, cam, out)
-        view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=self._z_depth(cam, out))
+        image, bar = self.compare(cam, out, view.snapped) or self._compose(view, cam, out)
+        depth = self._z_depth(cam, out) if image.shape[:2] == out["depth"].shape[:2] else None
+        view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=depth)
         view.renders += 1
         view.gui["colorbar"].visible = bar is not None
         if bar is not None:

@@ -1,0 +1,331 @@
+"""The Compare tab: the current run (A) next to a second run (B) from the same camera, and camera paths.
+
+Run B is a finished run folder (any run with a checkpoint: `runs/`, a bench with --keep-checkpoints,
+an earlier run of this app), opened read-only (`training.run.open_run`), or another method trained
+next to this one (same scene, views and steps, in its own folder). Every browser's view then shows:
+
+    split           A left of the divider, B right of it (the Divider slider moves it)
+    side by side    A | B, each the centre of your view at the full height
+    difference      |A - B| on the error colour scale: where the two runs disagree
+
+Moving the camera re-renders both. A snapped view also scores both against its ground truth.
+The camera path records your browser's camera as keyframes and renders them (and the ground truth,
+|error| and beta^2) to an MP4 in the run's folder, for A alone or A and B together
+(flipviz/viz/video.py); keyframes.json can be rendered again with `flipviz video RUN --path`.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+import viser
+
+from flipviz.data.cameras import Camera
+from flipviz.data.dataset import SceneData
+from flipviz.data.images import to_uint8
+from flipviz.training.checkpoint import CHECKPOINT_NAME
+from flipviz.training.config import METHOD_LABELS, METHODS, TrainConfig
+from flipviz.training.evaluate import image_psnr
+from flipviz.viz import palette
+from flipviz.viz.camera_path import KEYFRAMES_FILE, write_keyframes
+from flipviz.viz.run_view import RunView
+from flipviz.viz.viser_common import camera_from_viser, error_map, to_viser_pose
+
+log = logging.getLogger("flipviz.app")
+
+MODES = ("off", "split", "side by side", "difference")
+NONE = "(choose a run)"
+
+
+def split_image(a: np.ndarray, b: np.ndarray, divider: float) -> np.ndarray:
+    """A left of the divider (a fraction of the width), B right of it, a white line between (uint8)."""
+    w = a.shape[1]
+    x = int(round(np.clip(divider, 0.0, 1.0) * w))
+    out = np.concatenate([a[:, :x], b[:, x:]], axis=1)
+    out[:, max(0, x - 1) : min(w, x + 1)] = 255
+    return out
+
+
+def label(img: np.ndarray, text: str, x: int = 4, align_right: bool = False) -> np.ndarray:
+    """`text` in a white box at the image's top, starting at column x (ending there: align_right), in
+    place; sized to the image's width, so that coarse and fine passes show it alike."""
+    scale = max(0.3, img.shape[1] / 1400.0)
+    thick = max(1, round(1.5 * scale))
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    pad = max(2, round(4 * scale))
+    x = int(np.clip(x - tw - 2 * pad if align_right else x, 0, max(0, img.shape[1] - tw - 2 * pad)))
+    cv2.rectangle(img, (x, pad), (x + tw + 2 * pad, 3 * pad + th), (255, 255, 255), -1)
+    cv2.putText(img, text, (x + pad, 2 * pad + th), cv2.FONT_HERSHEY_SIMPLEX, scale, (20, 20, 20), thick, cv2.LINE_AA)
+    return img
+
+
+def finished_runs(folders: list[Path]) -> list[Path]:
+    """Run folders holding a checkpoint under `folders` (one level deep, and bench's runs/<key>), newest first."""
+    found: set[Path] = set()
+    for root in folders:
+        if not root.is_dir():
+            continue
+        for pattern in (CHECKPOINT_NAME, f"*/{CHECKPOINT_NAME}", f"runs/*/{CHECKPOINT_NAME}"):
+            found.update(p.parent.resolve() for p in root.glob(pattern))
+    return sorted(found, key=lambda p: p.stat().st_mtime, reverse=True)
+
+
+class RunB:
+    """The second run: a trainer opened read-only from a folder, or one training in its own thread."""
+
+    def __init__(self, trainer, training: bool) -> None:
+        self.trainer, self.training = trainer, training
+        self.thread: threading.Thread | None = None
+        if training:
+            self.thread = threading.Thread(target=trainer.run, name="flipviz-train-b", daemon=True)
+            self.thread.start()
+
+    @property
+    def name(self) -> str:
+        return f"{METHOD_LABELS[self.trainer.cfg.method]} ({self.trainer.run_dir.name})"
+
+    def render(self, camera: Camera) -> dict:
+        return self.trainer.render(camera)
+
+    def stop(self) -> None:
+        if self.thread is not None and self.thread.is_alive():
+            self.trainer.stop()
+            self.thread.join()
+
+
+class ComparePanel:
+    """GUI of the Compare tab, and the compositor the browsers' views call while it is on."""
+
+    def __init__(
+        self, server: viser.ViserServer, run: RunView, run_config: Callable[[], TrainConfig],
+        run_dir: Callable[[], Path | None], scene: Callable[[], SceneData | None], search: Callable[[], list[Path]],
+        on_change: Callable[[], None],
+    ) -> None:  # fmt: skip
+        gui = server.gui
+        self.server, self.run, self.run_config, self.run_dir, self.scene = server, run, run_config, run_dir, scene
+        self.search, self.on_change = search, on_change
+        self.b: RunB | None = None
+        self._lock = threading.Lock()
+        self.scores: dict[str, tuple[float, float]] = {}  # snapped view name -> (PSNR A, PSNR B)
+        gui.add_markdown("Compare this run (**A**) with a second run (**B**) from your camera: split, side by side, "
+                         "or their difference.")  # fmt: skip
+        with gui.add_folder("Run B"):
+            self.runs_dd = gui.add_dropdown("Finished run", (NONE,), hint="Run folders with a checkpoint (runs/, this app's runs)")
+            self.refresh_btn = gui.add_button("Find runs", icon=viser.Icon.REFRESH)
+            self.path_txt = gui.add_text("Or a folder", "", hint="Any run folder with checkpoint.pt")
+            self.load_btn = gui.add_button("Load run B", icon=viser.Icon.FOLDER_OPEN)
+            self.method_dd = gui.add_dropdown("Method", METHODS, initial_value="bl", hint="Train B with this method")
+            self.train_btn = gui.add_button("Train B next to this run", icon=viser.Icon.PLAYER_PLAY,
+                                            hint="Same scene, views and steps; both share the CPU")  # fmt: skip
+        self.mode_dd = gui.add_dropdown("Show", MODES, initial_value="off")
+        self.divider = gui.add_slider("Divider", 0.0, 1.0, 0.01, 0.5, hint="Split: where A ends and B begins")
+        self.status_md = gui.add_markdown("_No run B yet._")
+        with gui.add_folder("Camera path"):
+            self.keys_md = gui.add_markdown("No keyframes. Move your camera and add some.")
+            self.add_key_btn = gui.add_button("Add keyframe", icon=viser.Icon.CAMERA_PLUS)
+            self.clear_keys_btn = gui.add_button("Clear keyframes", icon=viser.Icon.TRASH)
+            self.frames_num = gui.add_number("Frames", 60, min=2, max=2000, step=1)
+            self.video_btn = gui.add_button("Render video", icon=viser.Icon.MOVIE, hint="A, and B when loaded; MP4 in A's folder")
+            self.video_md = gui.add_markdown("")
+        self.keyframes: list[Camera] = []
+        self._key_handles: list = []
+        self.video_path: Path | None = None
+        self.refresh_btn.on_click(lambda _: self.refresh())
+        self.load_btn.on_click(lambda _: self._load_chosen())
+        self.train_btn.on_click(lambda _: self.train_b(self.method_dd.value))
+        self.mode_dd.on_update(lambda _: self.on_change())
+        self.divider.on_update(lambda _: self.on_change())
+        self.add_key_btn.on_click(self._add_key)
+        self.clear_keys_btn.on_click(lambda _: self.clear_keyframes())
+        self.video_btn.on_click(lambda _: self.render_video())
+        self.refresh()
+
+    # ---- run B ----------------------------------------------------------------------------------
+    @property
+    def on(self) -> bool:
+        return self.b is not None and self.mode_dd.value != "off"
+
+    def refresh(self) -> None:
+        mine = self.run_dir()
+        runs = [str(p) for p in self.search() if mine is None or p != Path(mine).resolve()]
+        self.runs_dd.options = (NONE, *runs)
+
+    def _load_chosen(self) -> None:
+        chosen = self.path_txt.value.strip() or (self.runs_dd.value if self.runs_dd.value != NONE else "")
+        if chosen:
+            threading.Thread(target=self.load, args=(Path(chosen).expanduser(),), daemon=True).start()
+
+    def load(self, folder: Path) -> None:
+        """Open a finished run as B (a few seconds: its scene and model are loaded)."""
+        from flipviz.training.run import open_run
+
+        self.status_md.content = f"_Loading `{folder}`..._"
+        try:
+            trainer = open_run(folder)
+        except Exception as e:  # a bad folder: one line in the tab, the app goes on
+            self.status_md.content = f"**Cannot load run B:** {str(e).splitlines()[0]}"
+            return
+        self._set_b(RunB(trainer, training=False))
+
+    def train_b(self, method: str) -> None:
+        """Train `method` as B on this run's scene and views, in A's folder's sibling `<A>-B-<method>`."""
+        from flipviz.training.trainer import Trainer
+
+        a_dir, cfg = self.run_dir(), self.run_config()
+        if a_dir is None:
+            self.status_md.content = "_Run A has not started yet._"
+            return
+        out = Path(f"{a_dir}-B-{method.replace('+', 'u')}")
+        self.status_md.content = f"_Building run B ({method})..._"
+
+        def build() -> None:
+            try:
+                trainer = Trainer(replace(cfg, method=method, out=out, resume=None, no_rrd=True, rrd=None, rerun_serve=False))
+            except Exception as e:
+                self.status_md.content = f"**Cannot train run B:** {str(e).splitlines()[0]}"
+                return
+            self._set_b(RunB(trainer, training=True))
+
+        threading.Thread(target=build, daemon=True).start()
+
+    def _set_b(self, b: RunB) -> None:
+        with self._lock:
+            old, self.b = self.b, b
+        if old is not None:
+            old.stop()
+        self.scores.clear()
+        if self.mode_dd.value == "off":
+            self.mode_dd.value = "split"
+        self.show_status()
+        self.on_change()
+
+    def clear(self) -> None:
+        """A new run A: B stays (it may be compared with the new run too); scores are dropped."""
+        self.scores.clear()
+        self.show_status()
+
+    def stop(self) -> None:
+        with self._lock:
+            b, self.b = self.b, None
+        if b is not None:
+            b.stop()
+
+    def show_status(self) -> None:
+        b = self.b
+        if b is None:
+            self.status_md.content = "_No run B yet._"
+            return
+        setup = self.run.setup
+        lines = [f"**B:** {b.name}, step {b.trainer.step}" + (" (training)" if b.training and b.thread.is_alive() else "")]
+        if setup is not None and b.trainer.scene.name != setup.scene:
+            lines.append(f"B shows **{b.trainer.scene.name}**, A shows **{setup.scene}**: the views differ.")
+        for name, (pa, pb) in list(self.scores.items())[-3:]:
+            lines.append(f"{name}: PSNR A **{pa:.2f}** dB | B **{pb:.2f}** dB")
+        text = "\n\n".join(lines)
+        if self.status_md.content != text:
+            self.status_md.content = text
+
+    # ---- the browsers' views --------------------------------------------------------------------
+    def compose(self, cam: Camera, out_a: dict, snapped) -> tuple[np.ndarray, tuple | None] | None:
+        """A view's background while Compare is on (None: not on, the normal view). Called by the
+        render worker with A's render from `cam`; renders B from the same camera."""
+        b = self.b
+        if b is None or self.mode_dd.value == "off":
+            return None
+        mode = self.mode_dd.value
+        a_name = f"A: {METHOD_LABELS.get(self.run.setup.method, '?')}" if self.run.setup else "A"
+        b_name = f"B: {METHOD_LABELS[b.trainer.cfg.method]}"
+        if snapped is not None and snapped.reference is not None:
+            self._score(snapped, b)
+        if mode == "side by side":
+            half = cam.resized(max(8, cam.width // 2), cam.height)  # the centre of the view, full height
+            ra, rb = self.run.render(half, ("rgb",)), b.render(half)
+            if ra is None:
+                return None
+            img = np.concatenate([label(to_uint8(ra["rgb"]), a_name), label(to_uint8(rb["rgb"]), b_name)], axis=1)
+            img[:, half.width - 1 : half.width + 1] = 255
+            return img, None
+        out_b = b.render(cam)
+        if mode == "difference":
+            img = error_map(out_a["rgb"], out_b["rgb"])
+            return label(img, "|A - B|"), (*palette.ERROR_RANGE, "|A - B|, mean over RGB")
+        img = split_image(to_uint8(out_a["rgb"]), to_uint8(out_b["rgb"]), float(self.divider.value))
+        x = int(round(float(self.divider.value) * img.shape[1]))  # the names on either side of the divider
+        return label(label(img, a_name, x - 4, align_right=True), b_name, x + 4), None
+
+    def _score(self, snapped, b: RunB) -> None:
+        ra = self.run.render(snapped.camera, ("rgb",))
+        if ra is None:
+            return
+        ref = snapped.reference
+        self.scores[snapped.name] = (image_psnr(ra["rgb"], ref), image_psnr(b.render(snapped.camera)["rgb"], ref))
+        self.show_status()
+
+    # ---- camera path ----------------------------------------------------------------------------
+    def _add_key(self, event: viser.GuiEvent) -> None:
+        client = event.client
+        if client is None:
+            return
+        cam = client.camera
+        self.add_keyframe(camera_from_viser(cam.wxyz, cam.position, float(cam.fov), 320, max(8, round(320 / max(cam.aspect, 0.1)))))
+
+    def add_keyframe(self, cam: Camera) -> None:
+        i = len(self.keyframes)
+        self.keyframes.append(cam.with_pose(cam.c2w, name=f"key_{i:03d}"))
+        wxyz, pos = to_viser_pose(cam.c2w)
+        self._key_handles.append(self.server.scene.add_camera_frustum(
+            f"/keyframes/{i:03d}", fov=cam.fov_y, aspect=cam.width / cam.height, scale=0.15,
+            color=palette.CAMERA["novel"], wxyz=wxyz, position=pos,
+        ))  # fmt: skip
+        self.keys_md.content = f"**{len(self.keyframes)}** keyframe(s)" + ("" if len(self.keyframes) > 1 else ": add one more")
+
+    def clear_keyframes(self) -> None:
+        for h in self._key_handles:
+            h.remove()
+        self.keyframes, self._key_handles = [], []
+        self.keys_md.content = "No keyframes. Move your camera and add some."
+
+    def render_video(self, res: int = 200) -> threading.Thread | None:
+        """Render the keyframe path for A (and B) into A's folder, in a background thread."""
+        a_dir, setup = self.run_dir(), self.run.setup
+        if len(self.keyframes) < 2 or a_dir is None or setup is None:
+            self.video_md.content = "_Add two keyframes or more (and wait for the run to start)._"
+            return None
+        thread = threading.Thread(target=self._render_video, args=(Path(a_dir), setup, list(self.keyframes), res), daemon=True)
+        thread.start()
+        return thread
+
+    def _render_video(self, folder: Path, setup, keys: list[Camera], res: int) -> None:
+        from flipviz.viz.camera_path import keyframe_path
+        from flipviz.viz.video import GroundTruth, render_frames, write_mp4
+
+        try:
+            write_keyframes(folder / KEYFRAMES_FILE, keys)
+            cams = [c.resized(res) for c in keyframe_path(setup, keys, int(self.frames_num.value))]
+            renders = [(f"A: {METHOD_LABELS[setup.method]}", lambda c: self.run.render(c))]
+            if self.b is not None:
+                b = self.b
+                renders.append((f"B: {METHOD_LABELS[b.trainer.cfg.method]}", b.render))
+            done = [0]
+
+            def counted(frames):
+                for f in frames:
+                    done[0] += 1
+                    if done[0] % 5 == 0:
+                        self.video_md.content = f"_Rendering frame {done[0]} / {len(cams)}..._"
+                    yield f
+
+            scene = self.scene()
+            gt = GroundTruth(scene) if scene is not None else (lambda c: None)
+            path = write_mp4(folder / "video_keyframes.mp4", counted(render_frames(renders, cams, gt, progress=False)), 24)
+            self.video_path = path
+            self.video_md.content = f"Wrote `{path}` ({len(cams)} frames); keyframes in `{folder / KEYFRAMES_FILE}`."
+        except Exception as e:
+            log.warning("camera path video failed: %s: %s", type(e).__name__, e)
+            self.video_md.content = f"**Video failed:** {str(e).splitlines()[0]}"
