@@ -310,6 +310,14 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
         async with ViserTestClient(url(app)) as c:
             await c.send_camera(pos)
             await c.wait_gui("Load run B")
+            await c.set_value("Or a folder", str(tmp_path))  # not a run: one line in the tab, A goes on
+            await asyncio.sleep(0.2)
+            await c.click("Load run B")
+            t = time.monotonic()
+            while "Cannot load run B" not in app.compare.status_md.content:
+                assert time.monotonic() - t < 20, app.compare.status_md.content
+                await asyncio.sleep(0.1)
+            assert app.compare.b is None and app.status == "running"
             await c.set_value("Or a folder", str(tmp_path / "b"))
             await asyncio.sleep(0.2)
             n = len(c.messages)

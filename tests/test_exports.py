@@ -170,3 +170,37 @@ def test_run_report_is_one_offline_page(runs, tmp_path):
             d.get(out.resolve().as_uri())
             ok = d.execute_script("return Array.from(document.images).map(i => i.complete && i.naturalWidth > 0)")
             assert len(ok) == len(imgs) and all(ok)
+
+
+def test_ctrl_c_during_a_video_leaves_no_file_and_bad_runs_are_one_line(runs, tmp_path):
+    """Ctrl-C while frames render: exit 130, no MP4 and no temporary file; a folder that is not a run,
+    three runs, a bad keyframes file: one line each, exit 2."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    out = tmp_path / "v.mp4"
+    cmd = [sys.executable, "-m", "flipviz.cli", "video", str(runs["flip+u"]), "--frames", "400", "--res", "64", "--out", str(out)]
+    p = subprocess.Popen(cmd, cwd=tmp_path, env=env, stderr=subprocess.PIPE, text=True)
+    seen = ""
+    t0 = time.monotonic()
+    while "frame/s" not in seen and time.monotonic() - t0 < 120:  # tqdm's rate shows once frames render
+        seen += p.stderr.read(1)
+    p.send_signal(signal.SIGINT)
+    err = seen + p.stderr.read()
+    assert p.wait(timeout=60) == 130 and "interrupted" in err and "Traceback" not in err
+    assert not out.exists() and not list(tmp_path.glob(".v.*"))
+    bad = [
+        (["video", str(tmp_path)], "not a run folder"),
+        (["video", str(runs["bl"])] * 1 + [str(runs["bl"]), str(runs["bl"])], "one run folder, or two"),
+        (["video", str(runs["bl"]), "--path", str(tmp_path / "missing.json")], "keyframes file not found"),
+        (["compare", str(runs["bl"]), str(tmp_path)], "no Rerun recording"),
+        (["report", str(tmp_path)], "not a run folder"),
+    ]
+    for args, message in bad:
+        r = subprocess.run([sys.executable, "-m", "flipviz.cli", *args], cwd=tmp_path, env=env, capture_output=True, text=True)
+        assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.stderr)

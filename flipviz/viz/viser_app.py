@@ -8,7 +8,8 @@ All renders go through one duty-cycled `RenderWorker`, so browsers never stall t
 
 The app is the `RunView` (viz/run_view.py) its panels read. Panels: viser_train (the Train tab),
 viser_render (each browser's own view), viser_preview (the live 3D preview), viser_novel (novel
-cameras, snap to view), viser_mirror (the symmetry lesson), viser_scene (the run's 3D scene).
+cameras, snap to view), viser_mirror (the symmetry lesson), viser_compare (A/B with a second run,
+camera paths), viser_scene (the run's 3D scene).
 """
 
 from __future__ import annotations
@@ -454,6 +455,7 @@ class App(Observer):
         self.mirror.clear()
         self.mirror.build(setup)
         self.snap.rebuild()
+        self.compare.refresh()
         self.views.unsnap_all()
         cfg = self.cfg
         self.train.show_run(cfg.scene, str(cfg.data) if cfg.data else None, cfg.method, cfg.config, cfg.steps)

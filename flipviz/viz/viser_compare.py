@@ -120,7 +120,7 @@ class ComparePanel:
             self.refresh_btn = gui.add_button("Find runs", icon=viser.Icon.REFRESH)
             self.path_txt = gui.add_text("Or a folder", "", hint="Any run folder with checkpoint.pt")
             self.load_btn = gui.add_button("Load run B", icon=viser.Icon.FOLDER_OPEN)
-            self.method_dd = gui.add_dropdown("Method", METHODS, initial_value="bl", hint="Train B with this method")
+            self.method_dd = gui.add_dropdown("B method", METHODS, initial_value="bl", hint="Train B with this method")
             self.train_btn = gui.add_button("Train B next to this run", icon=viser.Icon.PLAYER_PLAY,
                                             hint="Same scene, views and steps; both share the CPU")  # fmt: skip
         self.mode_dd = gui.add_dropdown("Show", MODES, initial_value="off")

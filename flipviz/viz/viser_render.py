@@ -338,11 +338,16 @@ class ViewportRenderer:
             return
         image, bar = self.compare(cam, out, view.snapped) or self._compose(view, cam, out)
         depth = self._z_depth(cam, out) if image.shape[:2] == out["depth"].shape[:2] else None
-        view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=depth)
+        try:
+            view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=depth)
+            view.gui["colorbar"].visible = bar is not None
+            if bar is not None:
+                view.gui["colorbar"].image = palette.colorbar(*bar)
+        except RuntimeError as e:  # the client left while this rendered: viser removed its GUI handles
+            if "removed" not in str(e):
+                raise
+            return
         view.renders += 1
-        view.gui["colorbar"].visible = bar is not None
-        if bar is not None:
-            view.gui["colorbar"].image = palette.colorbar(*bar)
         if moving:  # a coarse frame while the camera moves; the passes once it is still
             return self.request(client_id, delay=self.settle_s, debounce=True)
         if pass_idx + 1 == n_passes:
