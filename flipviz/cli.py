@@ -68,6 +68,9 @@ def _run_train(cfg: TrainConfig) -> int:
                 f"[flipviz] {metrics['status']}: unobserved views PSNR {metrics['psnr']:.2f} dB, "
                 f"SSIM {metrics['ssim']:.3f}, LPIPS {lp_s}, {metrics.get('train_seconds', 0):.0f} s, {metrics['steps']} steps"
             )
+            if "iou" in metrics:
+                depth = f", depth error {metrics['depth_abs']:.3f}" if "depth_abs" in metrics else ""
+                print(f"[flipviz] the object: silhouette IoU {metrics['iou']:.3f}, PSNR inside it {metrics['psnr_object']:.2f} dB{depth}")
         elif metrics.get("message"):
             print(f"[flipviz] {metrics['status']}: {metrics['message']}")
         if rerun is not None and rerun.opts.path is not None:

@@ -60,8 +60,11 @@ def _check_outputs(out: Path, n_runs: int) -> list[dict]:
     assert chart.ndim == 3 and chart.shape[0] > 100
     grid = plt.imread(str(out / "grid_chair.png"))
     assert grid.ndim == 3 and grid.shape[0] > 100
-    tags = parse_page(out / "report.html")  # the same, as one offline page: tables, chart, grid
-    assert [t for t, _ in tags].count("table") >= 2 and len([a for t, a in tags if t == "img"]) == 2
+    assert "silhouette IoU B/L" in table and "gain Flip+U - B/L" in table and "tests within 30 deg" in table
+    gain = plt.imread(str(out / "gain_vs_coverage.png"))
+    assert gain.ndim == 3 and gain.shape[0] > 100
+    tags = parse_page(out / "report.html")  # the same, as one offline page: tables, charts, grid
+    assert [t for t, _ in tags].count("table") >= 4 and len([a for t, a in tags if t == "img"]) == 3
     return rows
 
 
@@ -129,7 +132,7 @@ def test_bench_resumes_after_kill_and_records_failures(tmp_path: Path, cache: Pa
     assert {r["status"] for r in rows if r["scene"] == "broken"} == {"failed"}
     assert "## Failed runs" in (out / "table.md").read_text()
     # The reports can be rebuilt from the run folders alone, without training.
-    for f in ("results.csv", "results.json", "table.md", "psnr_chart.png", "grid_chair.png", "report.html"):
+    for f in ("results.csv", "results.json", "table.md", "psnr_chart.png", "grid_chair.png", "report.html", "gain_vs_coverage.png"):
         (out / f).unlink()
     run_bench(BenchConfig(methods="bl,flip+u", configs="1,2", steps=30, out=out, report_only=True))
     _check_outputs(out, 8)

@@ -90,6 +90,10 @@ def test_events_and_outputs(chair, tmp_path):
     metrics = json.loads((run / "metrics.json").read_text())
     assert len(metrics["per_view"]) == 8 and metrics["steps"] == 30 and metrics["method"] == "flip+u"
     assert np.isfinite(metrics["psnr"]) and 0 <= metrics["ssim"] <= 1
+    # the structure scores: the silhouette, the object's PSNR, the true depth (built-in: ray cast)
+    assert 0 <= metrics["iou"] <= 1 and np.isfinite(metrics["psnr_object"]) and metrics["depth_abs"] >= 0
+    assert all({"iou", "psnr_object", "depth_abs"} <= set(v) for v in metrics["per_view"])
+    assert metrics["psnr_object"] < metrics["psnr"]  # the white background flatters the whole-image PSNR
     assert len(list((run / "test_renders").glob("*.png"))) == 16
     tf = json.loads((run / "transforms.json").read_text())
     assert len(tf["frames"]) == 8 and tf["camera_angle_x"] > 0

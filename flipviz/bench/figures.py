@@ -9,8 +9,10 @@ import numpy as np
 from flipviz.bench.config import BenchConfig, parse_methods
 from flipviz.bench.paper_numbers import METHOD_LABELS, METHOD_ORDER, TABLE3
 from flipviz.bench.results import main_rows, paper_scene, scenes
+from flipviz.bench.tables import gain, metric
 
 CHART_FILE = "psnr_chart.png"
+GAIN_FILE = "gain_vs_coverage.png"
 RENDERS_DIR = "test_renders"  # the trainer's <run>/test_renders/<view>.png and <view>_gt.png
 
 
@@ -53,6 +55,42 @@ def psnr_chart(rows: list[dict], methods: list[str], path: Path) -> Path:
     ax.set_title("Mean over configurations")
     ax.legend(fontsize=7, ncol=min(6, len(methods) + 1), loc="upper center", bbox_to_anchor=(0.5, -0.1), frameon=False)
     ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def gain_chart(rows: list[dict], path: Path) -> Path | None:
+    """Each configuration's gain Flip+U - B/L against its mirrors' coverage of the unobserved views
+    (mean angle to the nearest mirrored camera), a colour per scene: does flipping help where the
+    mirrors land near the test views?"""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.6, 3.8))
+    colors = plt.get_cmap("tab10")
+    drawn = False
+    for i, scene in enumerate(scenes(rows)):
+        pts = []
+        for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
+            g = gain(rows, scene, n)
+            run = next((r for r in rows if r["scene"] == scene and r["config"] == n and metric(r, "mirror_angle_deg") is not None), None)
+            if g is not None and run is not None:
+                pts.append((metric(run, "mirror_angle_deg"), g, n))
+        if pts:
+            drawn = True
+            x, y, ns = zip(*pts)
+            ax.scatter(x, y, color=colors(i), label=scene, s=30)
+            for xi, yi, n in pts:
+                ax.annotate(str(n), (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=7, color=colors(i))
+    if not drawn:
+        plt.close(fig)
+        return None
+    ax.axhline(0.0, color="black", lw=0.8)
+    ax.set_xlabel("mean angle from a test view to the nearest mirrored camera (deg)")
+    ax.set_ylabel("PSNR gain, Flip+U - B/L (dB)")
+    ax.set_title("Gain per configuration (labels) against coverage", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -117,6 +155,8 @@ def write_figures(out: Path, rows: list[dict], cfg: BenchConfig) -> list[Path]:
     """psnr_chart.png and grid_<scene>.png in `out` (matplotlib, Agg backend)."""
     methods = [m for m in METHOD_ORDER if m in parse_methods(cfg.methods)]
     written = [psnr_chart(rows, methods, out / CHART_FILE)]
+    if "bl" in methods and "flip+u" in methods and (g := gain_chart(rows, out / GAIN_FILE)) is not None:
+        written.append(g)
     for scene in scenes(rows):
         g = qualitative_grid(out, rows, scene, methods, cfg.grid_views, out / f"grid_{scene}.png")
         if g is not None:

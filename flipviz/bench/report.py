@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from flipviz.bench.config import BenchConfig
-from flipviz.bench.figures import CHART_FILE
+from flipviz.bench.figures import CHART_FILE, GAIN_FILE
 from flipviz.files import write_text
 from flipviz.viz.html_report import Figure, Section, file_uri, markdown, page
 
@@ -20,6 +20,8 @@ def write_html_report(out: Path, cfg: BenchConfig) -> Path:
     sections = [Section("", markdown(body), anchor="tables")]
     if (out / CHART_FILE).is_file():
         sections.append(Section("PSNR by method", "", [Figure(file_uri(out / CHART_FILE), width="100%")]))
+    if (out / GAIN_FILE).is_file():
+        sections.append(Section("Gain against coverage", "", [Figure(file_uri(out / GAIN_FILE), width="640px")]))
     for grid in sorted(out.glob("grid_*.png")):
         scene = grid.stem.removeprefix("grid_")
         sections.append(Section(f"Unobserved views: {scene}", "", [Figure(file_uri(grid), width="100%")]))

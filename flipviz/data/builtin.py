@@ -19,7 +19,7 @@ import numpy as np
 from flipviz.data.cameras import Camera, View, look_at
 from flipviz.data.dataset import DatasetError, SceneData
 from flipviz.data.protocol import protocol_indices
-from flipviz.data.raycast import render_mesh
+from flipviz.data.raycast import render_depth, render_mesh
 from flipviz.data.scenes import cached_mesh, symmetry_plane
 from flipviz.files import atomic_path
 
@@ -69,6 +69,17 @@ def _scene_mesh(name: str):
 def render_view(name: str, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Render built-in scene `name` from any camera -> (rgb on white, alpha); the mesh is cached."""
     return render_mesh(_scene_mesh(name), camera)
+
+
+def builtin_name(scene: SceneData) -> str | None:
+    """The built-in scene a SceneData was made from (None for data read from a folder)."""
+    return scene.source.removeprefix("builtin:") if scene.source.startswith("builtin:") else None
+
+
+def true_depth(scene: SceneData, camera: Camera) -> np.ndarray | None:
+    """The true depth of a built-in scene from `camera` (ray distance, inf off the object); None for data."""
+    name = builtin_name(scene)
+    return render_depth(_scene_mesh(name), camera) if name is not None else None
 
 
 def cache_dir() -> Path:

@@ -51,3 +51,13 @@ def render_mesh(
     rgb = rgb.reshape(H, s, W, s, 3).mean(axis=(1, 3))
     alpha = alpha.reshape(H, s, W, s).mean(axis=(1, 3))
     return rgb.astype(np.float32), alpha.astype(np.float32)
+
+
+def render_depth(mesh: trimesh.Trimesh, camera: Camera) -> np.ndarray:
+    """Distance along each pixel-centre ray to the first surface hit, (H, W) float32; inf where none
+    (the renderer's `depth` is the same distance, along unit rays)."""
+    origins, dirs = camera.rays()
+    loc, ray, _ = mesh.ray.intersects_location(origins.astype(np.float64), dirs.astype(np.float64), multiple_hits=False)
+    depth = np.full(len(origins), np.inf)
+    depth[ray] = np.linalg.norm(loc - origins[ray], axis=1)
+    return depth.reshape(camera.height, camera.width).astype(np.float32)

@@ -1,4 +1,11 @@
-"""Scores of renders against ground truth: PSNR, SSIM and LPIPS (AlexNet, when its weights exist).
+"""Scores of renders against ground truth: PSNR, SSIM and LPIPS (AlexNet, when its weights exist),
+and three that see the object's structure rather than the white background around it:
+
+    iou          silhouette IoU: rendered opacity > 0.5 against ground-truth alpha > 0.5
+    psnr_object  PSNR inside the object: over the union of the true and the rendered silhouettes
+                 (a render that keeps unobserved space white scores nothing there for it)
+    depth_abs    mean |rendered depth - true depth| over the true silhouette, in world units, where
+                 the ground truth has depth (built-in scenes: the ray caster's first hit)
 
 LPIPS (Zhang et al. 2018, v0.1, AlexNet) is implemented here because torchvision is not a
 dependency: AlexNet's `features` exactly as torchvision builds them, loaded from torchvision's
@@ -24,6 +31,46 @@ UNAVAILABLE = "unavailable"
 def image_psnr(pred: np.ndarray, gt: np.ndarray) -> float:
     """PSNR (dB) of an image against its ground truth, both in [0, 1] (the prediction is clipped)."""
     return psnr_from_mse(np.mean((np.clip(pred, 0, 1).astype(np.float64) - gt.astype(np.float64)) ** 2))
+
+
+def silhouette(alpha: np.ndarray) -> np.ndarray:
+    """The object's pixels: alpha (or rendered opacity) > 0.5."""
+    return np.asarray(alpha) > 0.5
+
+
+def silhouette_iou(opacity: np.ndarray, alpha: np.ndarray) -> float:
+    """|pred & true| / |pred | true| of the two silhouettes; 1.0 when both are empty."""
+    p, t = silhouette(opacity), silhouette(alpha)
+    union = np.logical_or(p, t).sum()
+    return float(np.logical_and(p, t).sum() / union) if union else 1.0
+
+
+def masked_psnr(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> float:
+    """PSNR (dB) over the pixels of `mask` only (nan when it is empty)."""
+    if not mask.any():
+        return float("nan")
+    d = np.clip(pred, 0, 1).astype(np.float64)[mask] - gt.astype(np.float64)[mask]
+    return psnr_from_mse(float(np.mean(d**2)))
+
+
+def depth_abs_error(depth: np.ndarray, true_depth: np.ndarray, alpha: np.ndarray) -> float:
+    """Mean |depth - true depth| over the true silhouette where the true depth is finite (nan: none)."""
+    m = silhouette(alpha) & np.isfinite(true_depth)
+    return float(np.mean(np.abs(depth[m] - true_depth[m]))) if m.any() else float("nan")
+
+
+def structure_scores(pred: np.ndarray, gt: np.ndarray, opacity: np.ndarray, alpha: np.ndarray | None,
+                     depth: np.ndarray | None = None, true_depth: np.ndarray | None = None) -> dict:  # fmt: skip
+    """iou, psnr_object (and depth_abs where the true depth is known) of one view; {} without alpha."""
+    if alpha is None:
+        return {}
+    out = {
+        "iou": silhouette_iou(opacity, alpha),
+        "psnr_object": masked_psnr(pred, gt, silhouette(opacity) | silhouette(alpha)),
+    }
+    if depth is not None and true_depth is not None:
+        out["depth_abs"] = depth_abs_error(depth, true_depth, alpha)
+    return out
 
 
 def ssim(pred: np.ndarray, gt: np.ndarray) -> float:
@@ -125,13 +172,18 @@ def lpips_distance(net: LPIPSAlex, pred: np.ndarray, gt: np.ndarray) -> float:
 # ------------------------------------------------------------------------------------ scoring
 
 
-def score_views(preds: list[np.ndarray], gts: list[np.ndarray], names: list[str]) -> dict:
-    """Mean and per-view PSNR / SSIM / LPIPS. LPIPS is "unavailable" (+ lpips_reason) without weights."""
+STRUCTURE = ("iou", "psnr_object", "depth_abs")
+
+
+def score_views(preds: list[np.ndarray], gts: list[np.ndarray], names: list[str], structure: list[dict] | None = None) -> dict:
+    """Mean and per-view PSNR / SSIM / LPIPS, and the structure scores given per view (`structure_scores`).
+    LPIPS is "unavailable" (+ lpips_reason) without weights."""
     net, reason = load_lpips()
     per_view = []
-    for name, p, g in zip(names, preds, gts):
+    for i, (name, p, g) in enumerate(zip(names, preds, gts)):
         row = {"name": name, "psnr": image_psnr(p, g), "ssim": ssim(p, g)}
         row["lpips"] = lpips_distance(net, p, g) if net is not None else UNAVAILABLE
+        row.update(structure[i] if structure else {})
         per_view.append(row)
     out = {
         "psnr": float(np.mean([r["psnr"] for r in per_view])) if per_view else float("nan"),
@@ -139,6 +191,10 @@ def score_views(preds: list[np.ndarray], gts: list[np.ndarray], names: list[str]
         "lpips": float(np.mean([r["lpips"] for r in per_view])) if net is not None and per_view else UNAVAILABLE,
         "per_view": per_view,
     }
+    for key in STRUCTURE:  # over the views that have it (nan-free)
+        vals = [r[key] for r in per_view if key in r and np.isfinite(r[key])]
+        if vals:
+            out[key] = float(np.mean(vals))
     if net is None:
         out["lpips_reason"] = reason
     return out

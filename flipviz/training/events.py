@@ -35,6 +35,7 @@ class CameraInfo:
     camera: Camera
     image: np.ndarray | None = None  # (H, W, 3) float32
     source: str = ""  # for mirrors: the name of the input view it was flipped from
+    alpha: np.ndarray | None = None  # (H, W) the true silhouette, where known (structure scores)
 
 
 @dataclass

@@ -28,6 +28,7 @@ from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
 from flipviz.files import FolderLock
+from flipviz.geometry.coverage import coverage
 from flipviz.geometry.poses import pose_errors
 from flipviz.geometry.symmetry import PlaneEstimate, plane_error
 from flipviz.model.objective import psnr
@@ -248,13 +249,20 @@ class Trainer:
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, write: bool = True) -> dict:
         """Score the unobserved test views; write metrics.json, test_renders/, transforms.json."""
+        from flipviz.data.builtin import true_depth
+
         tests = self.split.tests
-        preds = [self.render(v.camera, ("rgb",))["rgb"] for v in tests]
-        m = ev.score_views(preds, [v.rgb for v in tests], [v.name for v in tests])
+        outs = [self.render(v.camera, ("rgb", "opacity", "depth")) for v in tests]
+        preds = [o["rgb"] for o in outs]
+        structure = [ev.structure_scores(o["rgb"], v.rgb, o["opacity"], v.alpha, o["depth"], true_depth(self.scene, v.camera))
+                     for o, v in zip(outs, tests)]  # fmt: skip
+        m = ev.score_views(preds, [v.rgb for v in tests], [v.name for v in tests], structure)
         m.update(
             train_seconds=self.train_seconds, steps=self.step, method=self.cfg.method, config=self.split.config,
             scene=self.scene.name, mirror_plane=self.cfg.mirror_plane, settings=self.cfg.to_dict(),
         )  # fmt: skip
+        # the mirrors this configuration gives (built for every method, so B/L rows carry it too)
+        m["coverage"] = coverage([v.camera for v in tests], [v.camera for v in self.mirrors.views], self.mirrors.sphere.center)
         if self.spec.mirrors:
             m["plane"] = self._plane_report()
         pose = self._pose_report()
@@ -339,7 +347,7 @@ class Trainer:
         cams = [CameraInfo("input", v.camera, v.rgb, v.name) for v in self.split.inputs]
         cams += [CameraInfo("mirror_init", v.camera, v.rgb, v.meta.get("source", "")) for v in ms.views]
         cams += [CameraInfo("mirror_true", c, None, v.name) for c, v in zip(ms.true_cameras or [], self.split.inputs)]
-        cams += [CameraInfo("test", v.camera, v.rgb, v.name) for v in self.split.tests]
+        cams += [CameraInfo("test", v.camera, v.rgb, v.name, v.alpha) for v in self.split.tests]
         cams += [CameraInfo("upper", v.camera, v.rgb, v.name) for v in self.split.uppers]
         return SetupEvent(
             run_name=self.run_dir.name, scene=self.scene.name, method=self.cfg.method, config=self.split.config,

@@ -82,7 +82,9 @@ class GroundTruth:
     dataset at its own views (same pose), loaded at the video's resolution."""
 
     def __init__(self, scene: SceneData, loader: Callable[[int], SceneData] | None = None) -> None:
-        self.builtin = scene.source.removeprefix("builtin:") if scene.source.startswith("builtin:") else None
+        from flipviz.data.builtin import builtin_name
+
+        self.builtin = builtin_name(scene)
         self._scene, self._loader, self._by_res = scene, loader, {}
 
     def __call__(self, cam: Camera) -> np.ndarray | None:

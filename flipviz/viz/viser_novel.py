@@ -10,7 +10,7 @@ import viser
 
 from flipviz.data.cameras import Camera, look_at
 from flipviz.data.images import to_uint8
-from flipviz.training.evaluate import image_psnr
+from flipviz.training.evaluate import image_psnr, structure_scores
 from flipviz.viz import palette
 from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, error_map, to_viser_pose, upscale, visualize_output
@@ -150,12 +150,13 @@ class SnapToView:
         self.err = gui.add_image(BLANK, label="|error|", format="jpeg")
         self.beta2 = gui.add_image(BLANK, label="beta^2", format="jpeg")
         self.views: dict[str, tuple[str, int, Camera, np.ndarray | None]] = {}
+        self.alphas: dict[str, np.ndarray | None] = {}  # the true silhouettes of the test views
         self.snap_btn.on_click(lambda ev: self.snap(self.select.value, ev.client))
 
     def rebuild(self) -> None:
         """List the run's views (called on every new run)."""
         setup = self.run.setup
-        self.views = {}
+        self.views, self.alphas = {}, {}
         counts: dict[str, int] = {}
         for info in setup.cameras if setup is not None else []:
             if info.kind not in ("input", "mirror_init", "test"):
@@ -164,6 +165,7 @@ class SnapToView:
             counts[info.kind] = k + 1
             label = {"input": "input", "mirror_init": "mirror", "test": "test"}[info.kind]
             self.views[f"{label} {k}: {info.camera.name}"] = (info.kind, k, info.camera, info.image)
+            self.alphas[f"{label} {k}: {info.camera.name}"] = info.alpha
         self.select.options = tuple(self.views) or ("(none)",)
 
     def current_camera(self, key: str) -> Camera | None:
@@ -201,7 +203,11 @@ class SnapToView:
         if gt is not None:
             self.gt.image = upscale(to_uint8(gt), 320)
             self.err.image = upscale(error_map(out["rgb"], gt), 320)
-            self.text.content = f"**{key}** at step {self.run.step}: PSNR **{image_psnr(out['rgb'], gt):.2f} dB**"
+            text = f"**{key}** at step {self.run.step}: PSNR **{image_psnr(out['rgb'], gt):.2f} dB**"
+            st = structure_scores(out["rgb"], gt, out["opacity"], self.alphas.get(key))
+            if st:  # the object's own scores: silhouette IoU, PSNR inside the object
+                text += f", silhouette IoU **{st['iou']:.3f}**, object PSNR **{st['psnr_object']:.2f} dB**"
+            self.text.content = text
         else:
             self.text.content = f"**{key}** at step {self.run.step} (no ground truth)"
 
