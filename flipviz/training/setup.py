@@ -25,7 +25,7 @@ from flipviz.geometry.mirror import MirrorSet
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, PoseRefiner, RadianceModel
 from flipviz.training import flip
-from flipviz.training.config import TrainConfig
+from flipviz.training.config import PAPER_LR_DECAY, TrainConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
 from flipviz.training.plane_estimate import estimate_or_read
 
@@ -48,13 +48,15 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
     field: GridConfig | NerfConfig
     if cfg.field == "nerf":
         ba = cfg.ba and cfg.method in ("flip", "flip+u")
-        field = NerfConfig(barf_c2f=(0.1, 0.5) if ba else None)  # BARF's coarse-to-fine PE with BA
+        c2f = (0.1, 0.5) if ba else None  # BARF's coarse-to-fine PE with BA
+        field = NerfConfig(barf_c2f=c2f, lr_decay=PAPER_LR_DECAY) if cfg.preset == "paper" else NerfConfig(barf_c2f=c2f)
     elif cfg.grid_res is not None:
         n_up = len(cfg.grid_res) - 1  # upsample at evenly spread fractions of the first half
         field = GridConfig(grid_res=tuple(cfg.grid_res), upsample_at=tuple(0.5 * (i + 1) / (n_up + 1) for i in range(n_up)))
     else:
         field = GridConfig()
-    return ModelConfig(field=field, n_samples=cfg.n_samples, beta2_mode=cfg.beta2_mode)
+    entropy = {"w_entropy": 0.0} if cfg.preset == "paper" else {}  # vanilla NeRF has no entropy term
+    return ModelConfig(field=field, n_samples=cfg.n_samples, beta2_mode=cfg.beta2_mode, **entropy)
 
 
 def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
