@@ -51,6 +51,23 @@ def main(args: Args) -> None:
     print(f"screenshots in {args.out}")
 
 
+def open_page(d, port: int, settle_s: float) -> None:
+    """Load the app, let it settle, close the "software WebGL" notice of headless Chromium."""
+    d.get(f"http://127.0.0.1:{port}")
+    wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
+    time.sleep(settle_s)
+    for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
+        toast.click()
+
+
+def snap_to(d, app: App, prefix: str) -> None:
+    """Views tab: snap the browser's camera to the first view whose name starts with `prefix`."""
+    tab(d, "Views")
+    choose(d, "View", next(k for k in app.snap.views if k.startswith(prefix)))
+    button(d, "Snap to view")
+    time.sleep(1.0)
+
+
 def capture_shot(args: Args) -> None:
     from flipviz.data.driveby import export_driveby
 
@@ -60,11 +77,7 @@ def capture_shot(args: Args) -> None:
     try:
         wait_until(lambda: app.step >= args.steps_before // 2, 600, what="training")
         with chromium() as d:
-            d.get(f"http://127.0.0.1:{app.port}")
-            wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
-            time.sleep(5.0)
-            for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
-                toast.click()
+            open_page(d, app.port, settle_s=5.0)
             tab(d, "Mirror")
             checkbox(d, "Show plane preview", False)
             folder = d.find_elements("xpath", "//*[normalize-space(text())='Estimated plane']")
@@ -86,21 +99,14 @@ def compare_shot(args: Args) -> None:
     try:
         wait_until(lambda: app.status == "finished", 900, what="training A")
         with chromium() as d:
-            d.get(f"http://127.0.0.1:{app.port}")
-            wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
-            time.sleep(5.0)
-            for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
-                toast.click()
+            open_page(d, app.port, settle_s=5.0)
             tab(d, "Mirror")
             checkbox(d, "Show plane preview", False)
             checkbox(d, "Show mirror plane", False)
             tab(d, "Show")
             checkbox(d, "true symmetry plane", False)
-            tab(d, "Views")
-            key = next(k for k in app.snap.views if k.startswith("test 3"))
-            choose(d, "View", key)
-            button(d, "Snap to view")
-            time.sleep(2.0)
+            snap_to(d, app, "test 3")
+            time.sleep(1.0)
             tab(d, "Compare")
             d.find_element("xpath", "//label[normalize-space()='Or a folder']/following::input[1]").send_keys(str(b_dir))
             time.sleep(0.5)
@@ -118,17 +124,9 @@ def orbit_shots(args: Args) -> None:
     try:
         wait_until(lambda: app.step >= args.steps_before, 600, what="training")
         with chromium() as d:
-            d.get(f"http://127.0.0.1:{app.port}")
-            wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
-            time.sleep(6.0)
-            for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
-                toast.click()  # the "software WebGL" notice of headless Chromium
+            open_page(d, app.port, settle_s=6.0)
             d.save_screenshot(str(args.out / "app.png"))
-            tab(d, "Views")
-            key = next(k for k in app.snap.views if k.startswith("test 3"))
-            choose(d, "View", key)
-            button(d, "Snap to view")
-            time.sleep(1.0)
+            snap_to(d, app, "test 3")
             tab(d, "Train")
             for v in app.views.clients.values():
                 v.gui["blend"].value = 0.5
@@ -138,11 +136,7 @@ def orbit_shots(args: Args) -> None:
             button(d, "Restart training")
             wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before, 600,
                        what="the mug")  # fmt: skip
-            d.refresh()
-            wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the page")
-            time.sleep(4.0)
-            for toast in d.find_elements("xpath", "//button[contains(@class, 'CloseButton')]"):
-                toast.click()
+            open_page(d, app.port, settle_s=4.0)  # a new scene: load the page afresh
             tab(d, "Mirror")
             choose(d, "Mirrored frustums show", "disagreement")
             checkbox(d, "Show plane preview", False)

@@ -365,6 +365,19 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
                 await asyncio.sleep(0.2)
             await c.set_value("Show", "off")
             await asyncio.sleep(0.3)
+            # the camera path: two keyframes from this browser's camera, rendered for A and B
+            for p in ((4.0, -4.0, 3.0), (-4.0, -4.0, 3.0)):
+                await c.send_camera(p)
+                await asyncio.sleep(0.3)
+                await c.click("Add keyframe")
+                await asyncio.sleep(0.3)
+            await c.set_value("Frames", 6)
+            await asyncio.sleep(0.2)
+            await c.click("Render video")
+            t = time.monotonic()
+            while app.compare.video_path is None:
+                assert time.monotonic() - t < 60, app.compare.video_md.content
+                await asyncio.sleep(0.2)
 
     from flipviz.viz import palette
 
@@ -374,7 +387,12 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
     key = next(iter(app.compare.scores))
     b_psnr = next(v["psnr"] for v in metrics["per_view"] if v["name"] == app.snap.views[key][2].name)
     assert app.compare.scores[key][1] == pytest.approx(b_psnr, abs=1e-3)  # B's score is B's own metric
-    assert f"PSNR A" in app.compare.status_md.content
+    assert "PSNR A" in app.compare.status_md.content
+    assert len(app.compare.keyframes) == 2 and np.allclose(app.compare.keyframes[1].center, (-4.0, -4.0, 3.0))
+    frames = [f for f in __import__("imageio").v2.get_reader(app.compare.video_path)]  # (len() is inf: no list())
+    assert len(frames) == 6 and frames[0].shape[1] == 4 * 200  # render | truth | error | beta^2 at 200 px
+    assert frames[0].shape[0] >= 2 * 150  # a row for A and one for B, at the canvas's aspect (4:3)
+    assert (app.compare.video_path.parent / "keyframes.json").is_file()
     app.compare.stop()
 
 
