@@ -252,6 +252,7 @@ def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
         time.sleep(2.0)
         os.killpg(p.pid, signal.SIGINT)  # as a terminal sends Ctrl-C: to the whole process group
         t0 = time.monotonic()
+        interrupted_at = time.time()
         _, err = p.communicate(timeout=120)
         stopped_in = time.monotonic() - t0
     finally:
@@ -261,6 +262,8 @@ def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
     assert stopped_in < 30 and "run the same command again to resume" in err
     results = list(out.glob("runs/*/result.json"))
     assert len(results) < 8  # it did not go on with the queued runs
+    started = [json.loads(f.read_text())["started"] for f in out.glob("runs/*/started.json")]
+    assert not [t for t in started if t > interrupted_at + 0.5]  # not even one the pool had queued to a worker
     r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     assert len(list(out.glob("runs/*/result.json"))) == 8

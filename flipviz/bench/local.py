@@ -19,9 +19,12 @@ _SLOT = 0
 
 
 _RUNNING = False  # a run is under way in this worker
+_STOPPING = False  # the bench was interrupted: no further run starts in this worker
 
 
 def _stop_training(signum: int, frame) -> None:
+    global _STOPPING
+    _STOPPING = True
     if not _RUNNING:  # idle: nothing to save
         os._exit(0)
     raise KeyboardInterrupt  # the run in this worker stops gracefully: checkpoint kept, resumable
@@ -53,6 +56,8 @@ def _init_worker(threads: int, slots) -> None:
 
 def _run_in_worker(task: RunTask) -> dict:
     global _RUNNING
+    if _STOPPING:  # a task the pool had already queued to this worker (cancel() cannot reach it)
+        return {"key": task.key, "status": "interrupted", "error": "interrupted before it started"}
     task.slot = _SLOT
     _RUNNING = True
     try:

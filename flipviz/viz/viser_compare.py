@@ -147,10 +147,6 @@ class ComparePanel:
         self.refresh()
 
     # ---- run B ----------------------------------------------------------------------------------
-    @property
-    def on(self) -> bool:
-        return self.b is not None and self.mode_dd.value != "off"
-
     def refresh(self) -> None:
         mine = self.run_dir()
         runs = [str(p) for p in self.search() if mine is None or p != Path(mine).resolve()]
