@@ -164,7 +164,7 @@ def test_run_report_is_one_offline_page(runs, tmp_path):
     assert len(imgs) == 1 + 8 + 8 + 1  # cameras, 8 unobserved views, 8 mirrored views, the animation
     assert imgs[-1]["src"].startswith("data:image/gif")
     html = out.read_text()
-    assert "Flip+U" in html and "PSNR, unobserved views" in html
+    assert "Flip+U" in html and "PSNR, unobserved views" in html and "silhouette IoU" in html
     if chromium_available():  # and a real browser shows every image from the file alone
         with chromium() as d:
             d.get(out.resolve().as_uri())
@@ -172,7 +172,7 @@ def test_run_report_is_one_offline_page(runs, tmp_path):
             assert len(ok) == len(imgs) and all(ok)
 
 
-def test_ctrl_c_during_a_video_leaves_no_file_and_bad_runs_are_one_line(runs, tmp_path):
+def test_ctrl_c_during_a_video_leaves_no_file_and_bad_runs_are_one_line(runs, tmp_path, capsys):
     """Ctrl-C while frames render: exit 130, no MP4 and no temporary file; a folder that is not a run,
     three runs, a bad keyframes file: one line each, exit 2."""
     import os
@@ -201,6 +201,10 @@ def test_ctrl_c_during_a_video_leaves_no_file_and_bad_runs_are_one_line(runs, tm
         (["compare", str(runs["bl"]), str(tmp_path)], "no Rerun recording"),
         (["report", str(tmp_path)], "not a run folder"),
     ]
-    for args, message in bad:
-        r = subprocess.run([sys.executable, "-m", "flipviz.cli", *args], cwd=tmp_path, env=env, capture_output=True, text=True)
-        assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.stderr)
+    from flipviz import cli
+
+    for args, message in bad:  # in this process: the same entry point, without starting Python again
+        capsys.readouterr()
+        code = cli.main(args)
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and message in err and len(err.splitlines()) == 1, (args, err)

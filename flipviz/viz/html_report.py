@@ -173,6 +173,10 @@ def _summary(trainer, metrics: dict) -> str:
     ]  # fmt: skip
     if "psnr" in metrics:
         rows += [("PSNR, unobserved views", f"{metrics['psnr']:.2f} dB"), ("SSIM", f"{metrics['ssim']:.3f}")]
+    if "iou" in metrics:  # the object's own scores (training/evaluate.py)
+        rows += [("silhouette IoU", f"{metrics['iou']:.3f}"), ("PSNR inside the object", f"{metrics['psnr_object']:.2f} dB")]
+    if "depth_abs" in metrics:
+        rows.append(("depth error (world units)", f"{metrics['depth_abs']:.3f}"))
     plane = metrics.get("plane", {})
     if "error_deg" in plane:
         rows.append(("plane error vs the true plane", f"{plane['error_deg']:.2f} deg, offset {plane['error_offset']:.3f}"))
@@ -213,7 +217,7 @@ def run_page(cfg: ReportConfig) -> str:
         if out.get("beta2") is not None:
             panels.append(palette.colormap(out["beta2"], *palette.BETA2_RANGE))
         caption = f"{cam.name}: flipped input | render at the refined pose" + (" | beta^2 (0-0.1)" if len(panels) == 3 else "")
-        mirrors.append(Figure(png_uri(np.concatenate(panels, axis=1)), caption, width=f"{2 * cfg.res * len(panels) // 2}px", css="pixel"))
+        mirrors.append(Figure(png_uri(np.concatenate(panels, axis=1)), caption, width=f"{cfg.res * len(panels)}px", css="pixel"))
     if mirrors:
         sections.append(Section("Mirrored views", markdown(
             "Each flipped input, the model seen from its BA-refined pose and beta^2 there: where beta^2 rises, the mirror "
