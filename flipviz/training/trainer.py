@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from flipviz.data.builtin import true_depth
 from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
@@ -249,8 +250,6 @@ class Trainer:
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, write: bool = True) -> dict:
         """Score the unobserved test views; write metrics.json, test_renders/, transforms.json."""
-        from flipviz.data.builtin import true_depth
-
         tests = self.split.tests
         outs = [self.render(v.camera, ("rgb", "opacity", "depth")) for v in tests]
         preds = [o["rgb"] for o in outs]

@@ -66,9 +66,8 @@ def interpolate(keys: list[Camera], n: int, center: np.ndarray, up: np.ndarray) 
 def _ring(setup, n: int, az0: float, span: float) -> list[Camera]:
     """n cameras on an arc from azimuth az0 over `span` degrees, at the inputs' mean height and
     distance from the run's centre, each looking at the centre."""
-    s = setup
-    center, up = np.asarray(s.sphere_center), np.asarray(s.up)
-    inputs = [c.camera for c in s.cameras if c.kind == "input"]
+    center, up = np.asarray(setup.sphere_center), np.asarray(setup.up)
+    inputs = [c.camera for c in setup.cameras if c.kind == "input"]
     sph = np.array([_spherical(c.center, center, up) for c in inputs])
     el, r = float(sph[:, 1].mean()), float(sph[:, 2].mean())
     template = inputs[0]
@@ -81,9 +80,8 @@ def _ring(setup, n: int, az0: float, span: float) -> list[Camera]:
 
 def input_azimuth(setup) -> float:
     """The mean azimuth (degrees) of the input cameras about the run's centre: the observed side."""
-    s = setup
-    center, up = np.asarray(s.sphere_center), np.asarray(s.up)
-    az = np.radians([_spherical(c.camera.center, center, up)[0] for c in s.cameras if c.kind == "input"])
+    center, up = np.asarray(setup.sphere_center), np.asarray(setup.up)
+    az = np.radians([_spherical(c.camera.center, center, up)[0] for c in setup.cameras if c.kind == "input"])
     return float(np.degrees(np.arctan2(np.sin(az).mean(), np.cos(az).mean())))
 
 
@@ -95,11 +93,10 @@ def orbit_path(setup, n: int) -> list[Camera]:
 def unobserved_path(setup, n: int) -> list[Camera]:
     """Across the unobserved side: through the test views sorted by azimuth (measured from the far
     side, so the arc never wraps), with frames in between."""
-    s = setup
-    tests = [c.camera for c in s.cameras if c.kind == "test"]
+    tests = [c.camera for c in setup.cameras if c.kind == "test"]
     if not tests:  # nothing held out: the half ring opposite the inputs
         return _ring(setup, n, input_azimuth(setup) + 90.0, 180.0)
-    center, up = np.asarray(s.sphere_center), np.asarray(s.up)
+    center, up = np.asarray(setup.sphere_center), np.asarray(setup.up)
     far = input_azimuth(setup) + 180.0
     rel = [((_spherical(c.center, center, up)[0] - far + 180.0) % 360.0) - 180.0 for c in tests]
     keys = [tests[i] for i in np.argsort(rel)]
@@ -143,5 +140,4 @@ def read_keyframes(path: Path | str, width: int) -> list[Camera]:
 
 
 def keyframe_path(setup, keys: list[Camera], n: int) -> list[Camera]:
-    s = setup
-    return interpolate(keys, n, np.asarray(s.sphere_center), np.asarray(s.up))
+    return interpolate(keys, n, np.asarray(setup.sphere_center), np.asarray(setup.up))

@@ -188,7 +188,6 @@ def run_page(cfg: ReportConfig) -> str:
     """The HTML of a run's page (renders its views with the run's final model)."""
     import json
 
-    from flipviz.data import load_scene
     from flipviz.training.run import open_run
     from flipviz.viz.camera_path import unobserved_path
     from flipviz.viz.video import GifFrames, GroundTruth, compose_row, render_frames
@@ -202,7 +201,7 @@ def run_page(cfg: ReportConfig) -> str:
         Section("Run", _summary(trainer, metrics)),
         Section("Cameras", "", [Figure(png_uri(camera_map(setup, trainer.mirror_c2w())), width="640px")]),
     ]
-    gt = GroundTruth(trainer.scene, lambda w: load_scene(trainer.cfg.scene, trainer.cfg.data, w))
+    gt = GroundTruth.of_run(trainer)
     tests = []
     for v in trainer.split.tests:
         cam = v.camera.resized(cfg.res)

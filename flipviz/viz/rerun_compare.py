@@ -77,8 +77,6 @@ def merged_chunks(runs: list[Path]) -> tuple[list, list[str], dict[str, list[str
                     if m := re.match(r"^/views/test/([^/]+)/render$", ent):
                         names.add(m.group(1))
                     chunks.append(chunk.with_entity_path(f"/{label}{ent}"))
-            except UserError:
-                raise
             except Exception as e:  # truncated or foreign file: one line
                 raise UserError(f"cannot read the recording {path} ({type(e).__name__}: {e})".splitlines()[0]) from None
         tests[label] = sorted(names)

@@ -19,6 +19,8 @@ import cv2
 import numpy as np
 import tyro
 
+from flipviz.data import load_scene
+from flipviz.data.builtin import builtin_name, render_view
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import SceneData
 from flipviz.data.images import to_uint8
@@ -82,15 +84,16 @@ class GroundTruth:
     dataset at its own views (same pose), loaded at the video's resolution."""
 
     def __init__(self, scene: SceneData, loader: Callable[[int], SceneData] | None = None) -> None:
-        from flipviz.data.builtin import builtin_name
-
         self.builtin = builtin_name(scene)
         self._scene, self._loader, self._by_res = scene, loader, {}
 
+    @classmethod
+    def of_run(cls, trainer) -> "GroundTruth":
+        """A run's ground truth, its dataset reloaded at another width when a camera asks for one."""
+        return cls(trainer.scene, lambda width: load_scene(trainer.cfg.scene, trainer.cfg.data, width))
+
     def __call__(self, cam: Camera) -> np.ndarray | None:
         if self.builtin is not None:
-            from flipviz.data.builtin import render_view
-
             return render_view(self.builtin, cam)[0]
         scene = self._scene_at(cam.width)
         scale = float(np.linalg.norm(scene.bbox[1] - scene.bbox[0]))
@@ -208,7 +211,6 @@ class GifFrames:
 
 def make_video(cfg: VideoConfig) -> tuple[Path, Path | None]:
     """`flipviz video`: open the runs, render the path, write the MP4 (and the GIF)."""
-    from flipviz.data import load_scene
     from flipviz.training.run import open_run
     from flipviz.training.trainer import scene_label
 
@@ -218,7 +220,7 @@ def make_video(cfg: VideoConfig) -> tuple[Path, Path | None]:
     if len(runs) == 2 and runs[1].scene.name != a.scene.name:
         raise UserError(f"the runs show different scenes ({a.scene.name}, {runs[1].scene.name}); compare runs of one scene")
     cameras = path_cameras(a.setup_event, cfg.path, cfg.frames, cfg.res)
-    gt = GroundTruth(a.scene, lambda w: load_scene(a.cfg.scene, a.cfg.data, w))
+    gt = GroundTruth.of_run(a)
     labels = [f"{METHOD_LABELS[r.cfg.method]} ({scene_label(r.cfg)}, {r.step} steps)" for r in runs]
     frames = render_frames([(label, r.render) for label, r in zip(labels, runs)], cameras, gt)
     small = GifFrames(step=2 if len(cameras) > 40 else 1)

@@ -113,6 +113,7 @@ class ComparePanel:
         self.b: RunB | None = None
         self._lock = threading.Lock()
         self.scores: dict[str, tuple[float, float]] = {}  # snapped view name -> (PSNR A, PSNR B)
+        self._scored_at: dict[str, tuple[int, int]] = {}  # snapped view name -> (A's step, B's step) of its scores
         gui.add_markdown("Compare this run (**A**) with a second run (**B**) from your camera: split, side by side, "
                          "or their difference.")  # fmt: skip
         with gui.add_folder("Run B"):
@@ -256,11 +257,16 @@ class ComparePanel:
         return label(label(img, a_name, x - 4, align_right=True), b_name, x + 4), None
 
     def _score(self, snapped, b: RunB) -> None:
+        """Both runs against the snapped view's ground truth, once per pair of steps (not per render pass)."""
+        steps = (self.run.step, b.trainer.step)
+        if snapped.name in self.scores and self._scored_at.get(snapped.name) == steps:
+            return
         ra = self.run.render(snapped.camera, ("rgb",))
         if ra is None:
             return
         ref = snapped.reference
         self.scores[snapped.name] = (image_psnr(ra["rgb"], ref), image_psnr(b.render(snapped.camera)["rgb"], ref))
+        self._scored_at[snapped.name] = steps
         self.show_status()
 
     # ---- camera path ----------------------------------------------------------------------------
