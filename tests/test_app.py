@@ -317,6 +317,8 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             while "Cannot load run B" not in app.compare.status_md.content:
                 assert time.monotonic() - t < 20, app.compare.status_md.content
                 await asyncio.sleep(0.1)
+            await asyncio.sleep(2.5)  # the line stays past the status loop's next refresh (every second)
+            assert "Cannot load run B" in app.compare.status_md.content
             assert app.compare.b is None and app.status == "running"
             await c.set_value("Or a folder", str(tmp_path / "b"))
             await asyncio.sleep(0.2)

@@ -111,6 +111,7 @@ class ComparePanel:
         self.server, self.run, self.run_config, self.run_dir, self.scene = server, run, run_config, run_dir, scene
         self.search, self.on_change = search, on_change
         self.b: RunB | None = None
+        self._note = "_No run B yet._"  # what the tab says while there is no B (loading, or why it failed)
         self._lock = threading.Lock()
         self.scores: dict[str, tuple[float, float]] = {}  # snapped view name -> (PSNR A, PSNR B)
         self._scored_at: dict[str, tuple[int, int]] = {}  # snapped view name -> (A's step, B's step) of its scores
@@ -155,18 +156,20 @@ class ComparePanel:
 
     def _load_chosen(self) -> None:
         chosen = self.path_txt.value.strip() or (self.runs_dd.value if self.runs_dd.value != NONE else "")
-        if chosen:
-            threading.Thread(target=self.load, args=(Path(chosen).expanduser(),), daemon=True).start()
+        if not chosen:
+            self._say("_Choose a finished run or type a folder first._")
+            return
+        threading.Thread(target=self.load, args=(Path(chosen).expanduser(),), daemon=True).start()
 
     def load(self, folder: Path) -> None:
         """Open a finished run as B (a few seconds: its scene and model are loaded)."""
         from flipviz.training.run import open_run
 
-        self.status_md.content = f"_Loading `{folder}`..._"
+        self._say(f"_Loading `{folder}`..._")
         try:
             trainer = open_run(folder)
         except Exception as e:  # a bad folder: one line in the tab, the app goes on
-            self.status_md.content = f"**Cannot load run B:** {str(e).splitlines()[0]}"
+            self._say(f"**Cannot load run B:** {str(e).splitlines()[0]}")
             return
         self._set_b(RunB(trainer, training=False))
 
@@ -176,16 +179,16 @@ class ComparePanel:
 
         a_dir, cfg = self.run_dir(), self.run_config()
         if a_dir is None:
-            self.status_md.content = "_Run A has not started yet._"
+            self._say("_Run A has not started yet._")
             return
         out = Path(f"{a_dir}-B-{method.replace('+', 'u')}")
-        self.status_md.content = f"_Building run B ({method})..._"
+        self._say(f"_Building run B ({method})..._")
 
         def build() -> None:
             try:
                 trainer = Trainer(replace(cfg, method=method, out=out, resume=None, no_rrd=True, rrd=None, rerun_serve=False))
             except Exception as e:
-                self.status_md.content = f"**Cannot train run B:** {str(e).splitlines()[0]}"
+                self._say(f"**Cannot train run B:** {str(e).splitlines()[0]}")
                 return
             self._set_b(RunB(trainer, training=True))
 
@@ -194,6 +197,7 @@ class ComparePanel:
     def _set_b(self, b: RunB) -> None:
         with self._lock:
             old, self.b = self.b, b
+        self._note = "_No run B yet._"
         if old is not None:
             old.stop()
         self.scores.clear()
@@ -213,10 +217,14 @@ class ComparePanel:
         if b is not None:
             b.stop()
 
+    def _say(self, note: str) -> None:
+        self._note = self.status_md.content = note
+
     def show_status(self) -> None:
         b = self.b
-        if b is None:
-            self.status_md.content = "_No run B yet._"
+        if b is None:  # the last note stays until B arrives (the status loop calls this every second)
+            if self.status_md.content != self._note:
+                self.status_md.content = self._note
             return
         setup = self.run.setup
         lines = [f"**B:** {b.name}, step {b.trainer.step}" + (" (training)" if b.training and b.thread.is_alive() else "")]
