@@ -73,6 +73,9 @@ def _run_train(cfg: TrainConfig) -> int:
                 print(f"[flipviz] the object: silhouette IoU {metrics['iou']:.3f}, PSNR inside it {metrics['psnr_object']:.2f} dB{depth}")
         elif metrics.get("message"):
             print(f"[flipviz] {metrics['status']}: {metrics['message']}")
+        if metrics.get("plane", {}).get("trained") is False:
+            print(f"[flipviz] trained without mirrored views: the estimated plane's confidence is "
+                  f"{metrics['plane']['confidence']:.2f} (--unconfident-plane use keeps them)")  # fmt: skip
         if rerun is not None and rerun.opts.path is not None:
             print(f"[flipviz] recording: rerun {rerun.opts.path}")
         if rerun is not None and cfg.rerun_serve:

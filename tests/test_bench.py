@@ -197,6 +197,13 @@ def test_plan_keys_and_ablation(tmp_path: Path) -> None:
     # ... and nothing that does not (output folder, workers, executor).
     same = BenchConfig(**{**cfg.__dict__, "out": tmp_path, "workers": 2, "executor": "ray"})
     assert s.key(same) == s.key(cfg)
+    # A configuration's Flip runs share one estimated plane: Flip first, Flip+U last, one file per configuration.
+    assert [x.method for x in specs[:5]] == ["flip", "bl", "bl+u", "upper", "flip+u"]
+    files = {(x.scene, x.config, x.method): x.train_config(cfg, tmp_path / x.key(cfg), tmp_path / "planes").plane_file for x in specs}
+    assert files[("chair", 1, "flip")] == files[("chair", 1, "flip+u")] != files[("chair", 2, "flip")] != files[("mug", 2, "flip")]
+    assert files[("chair", 1, "bl")] is None and files[("chair", 1, "flip")].parent == tmp_path / "planes"
+    official = BenchConfig(**{**cfg.__dict__, "mirror_plane": "official"})
+    assert specs[0].train_config(official, tmp_path, tmp_path / "planes").plane_file is None
 
 
 def test_parsing_and_scene_errors(tmp_path: Path) -> None:

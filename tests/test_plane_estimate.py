@@ -81,8 +81,35 @@ def test_a_resumed_run_reads_its_estimate_back(tmp_path, turned_chair):
     path.write_text(__import__("json").dumps(est.to_dict()))
     back = estimate_or_read([], turned_chair, "cpu", 0, path)  # no inputs: it must not estimate
     assert np.allclose(back.plane.normal, est.plane.normal) and back.confidence == est.confidence
+    shared = estimate_or_read([], turned_chair, "cpu", 0, tmp_path / "absent.json", path)  # --plane-file: read, too
+    assert np.allclose(shared.plane.point, est.plane.point) and shared.confidence == est.confidence
     path.write_text("{}")
     from flipviz.errors import UserError
 
     with pytest.raises(UserError, match="cannot read the estimated plane"):
         estimate_or_read([], turned_chair, "cpu", 0, path)
+
+
+@pytest.mark.parametrize("confidence", [CONFIDENT - 0.01, CONFIDENT])
+def test_an_unconfident_plane_is_dropped_unless_the_user_keeps_it(tmp_path, turned_chair, confidence):
+    """Flip+U with auto: below the threshold the run trains on the inputs only (no mirrored ray, no BA,
+    beta^2 on no ray: B/L's training set), unless --unconfident-plane use; at it, the mirrors stay."""
+    from dataclasses import replace
+
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.setup import build_run
+
+    est = PlaneEstimate(turned_chair.symmetry_plane, confidence, 0.9, 0.8, [0.0], [0.5], 3.0)
+    saved = tmp_path / "plane.json"
+    saved.write_text(__import__("json").dumps(est.to_dict()))
+    cfg = TrainConfig(scene="chair-turned", method="flip+u", res=100, steps=10, out=tmp_path / "run")
+    dropped, kept = (build_run(replace(cfg, unconfident_plane=u), turned_chair, saved) for u in ("drop", "use"))
+    bl = build_run(replace(cfg, method="bl"), turned_chair)
+    assert kept.training.mirror_ids and kept.refiner is not None and kept.spec.uncertain_mirrors
+    if confidence >= CONFIDENT:
+        assert dropped.training.mirror_ids == kept.training.mirror_ids
+        return
+    assert dropped.estimate is not None and not dropped.estimate.confident
+    assert not dropped.training.mirror_ids and dropped.refiner is None and not dropped.spec.uses_beta
+    assert len(dropped.training.views) == len(bl.training.views) == 8
+    assert np.array_equal(dropped.training.init_c2w.numpy(), bl.training.init_c2w.numpy())

@@ -31,11 +31,12 @@ from flipviz.files import write_json
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
 
-# TrainConfig fields that change where a run writes or what it logs, not what it computes.
 # BenchConfig fields that are TrainConfig settings, passed to every run as they are.
 RUN_SETTINGS = ("res", "steps", "batch_rays", "field", "n_samples", "grid_res", "mirror_plane", "mirror_pose", "seed", "device")
+# TrainConfig fields that change where a run writes or what it logs, not what it computes.
 NOT_IN_KEY = (
     "out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop",
+    "plane_file",
 )  # fmt: skip
 
 
@@ -50,15 +51,23 @@ class RunSpec:
     ba: bool = True
     uncertainty: bool = True
 
-    def train_config(self, cfg: BenchConfig, out: Path | None = None) -> TrainConfig:
+    def train_config(self, cfg: BenchConfig, out: Path | None = None, planes: Path | None = None) -> TrainConfig:
         """`flipviz train`'s defaults, with this run's scene, method, configuration and flags, and
-        the bench's run settings (BenchConfig's fields named as TrainConfig's)."""
+        the bench's run settings (BenchConfig's fields named as TrainConfig's). `planes`: the folder
+        where the Flip runs of one configuration share their estimated plane (auto)."""
+        shared = planes is not None and self.method in ("flip", "flip+u") and cfg.mirror_plane == "auto"
         return replace(
             TrainConfig(), scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
             config=self.config, ba=self.ba, uncertainty=self.uncertainty, out=out, no_rrd=True,
             images_every=0,  # nobody watches: skip the periodic test renders
+            plane_file=planes / self.plane_name(cfg) if shared else None,
             **{k: getattr(cfg, k) for k in RUN_SETTINGS},
         )  # fmt: skip
+
+    def plane_name(self, cfg: BenchConfig) -> str:
+        """The estimate's file: what it depends on (the inputs at the run's resolution, the seed, the device)."""
+        d = {"data": self.data, "res": cfg.res, "seed": cfg.seed, "device": cfg.device}
+        return f"{self.scene}-c{self.config}-" + hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12] + ".json"
 
     def key(self, cfg: BenchConfig) -> str:
         d = {k: v for k, v in self.train_config(cfg).to_dict().items() if k not in NOT_IN_KEY}
@@ -93,7 +102,8 @@ def resolve_scene(name: str, data_root: Path | None) -> tuple[str, str | None]:
 
 
 def plan(cfg: BenchConfig) -> list[RunSpec]:
-    """Every run of the bench, each once, in order scene -> configuration -> method."""
+    """Every run of the bench, each once, in order scene -> configuration -> method, where a
+    configuration's Flip runs first and its Flip+U last: by then the plane they share is estimated."""
     if cfg.res < 8 or cfg.steps < 1 or cfg.workers < 1:
         raise UserError("--res must be >= 8, --steps >= 1 and --workers >= 1")
     methods, configs = parse_methods(cfg.methods), parse_configs(cfg.configs)
@@ -104,7 +114,7 @@ def plan(cfg: BenchConfig) -> list[RunSpec]:
     specs: dict[str, RunSpec] = {}
     for scene, data in scenes:
         for n in configs:
-            for m in methods:
+            for m in sorted(methods, key=lambda m: {"flip": 0, "flip+u": 2}.get(m, 1)):
                 s = RunSpec(scene, data, m, n)
                 specs.setdefault(s.key(cfg), s)
             if cfg.ablation:  # Table II: Flip (no U) / Flip+U, each with and without BA
@@ -169,7 +179,7 @@ def run_bench(cfg: BenchConfig) -> Path:
         _prewarm([s for _, s in todo], cfg.res)
         threads = cfg.cpus_per_run or (max(1, (os.cpu_count() or 1) // cfg.workers) if cfg.executor == "local" else 1)
         tasks = [
-            RunTask(key=k, run_dir=str(out / "runs" / k), train=s.train_config(cfg, out / "runs" / k).to_dict(),
+            RunTask(key=k, run_dir=str(out / "runs" / k), train=s.train_config(cfg, out / "runs" / k, out / "planes").to_dict(),
                     labels=s.labels(), threads=threads, progress=not cfg.quiet,
                     keep_checkpoint=cfg.keep_checkpoints)
             for k, s in todo

@@ -15,7 +15,7 @@ from flipviz.files import write_json, write_text
 
 CSV_FIELDS = (
     "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "iou", "psnr_object", "depth_abs",
-    "mirror_angle_deg", "within_30", "train_seconds",
+    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "train_seconds",
     "wall_seconds", "steps", "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
     "flipviz_version", "torch_version", "numpy_version",
 )  # fmt: skip
@@ -33,6 +33,9 @@ def metric(r: dict, key: str):
     if key in ("mirror_angle_deg", "within_30"):
         cov = m.get("coverage") or {}
         return cov.get("mean_angle_deg" if key == "mirror_angle_deg" else key)
+    if key in ("plane_confidence", "mirrors_trained"):  # Flip runs: the auto plane's confidence, and its use
+        plane = m.get("plane") or {}
+        return plane.get("confidence" if key == "plane_confidence" else "trained")
     return m.get(key)
 
 
@@ -159,7 +162,8 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
     both = "bl" in methods and "flip+u" in methods
     head = ["Scene", "Config"] + [METHOD_LABELS[m] for m in methods]
     if both:
-        head += ["gain Flip+U - B/L", "gain in the object", "angle to nearest mirror (deg)", "tests within 30 deg"]
+        head += ["gain Flip+U - B/L", "gain in the object", "angle to nearest mirror (deg)", "tests within 30 deg",
+                 "plane confidence (Flip+U)"]  # fmt: skip
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for scene in scenes(rows):
         for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
@@ -172,8 +176,17 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
                 any_run = next((r for r in rows if r["scene"] == scene and r["config"] == n and metric(r, "within_30") is not None), None)
                 cells += [f"{g:+.2f}" if g is not None else "-", f"{go:+.2f}" if go is not None else "-"]
                 cells += [f"{metric(any_run, 'mirror_angle_deg'):.1f}", f"{metric(any_run, 'within_30'):.0%}"] if any_run else ["-", "-"]
+                cells.append(plane_cell(next((r for r in main_rows(rows, scene, "flip+u") if r["config"] == n), None)))
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def plane_cell(r: dict | None) -> str:
+    """The auto plane's confidence of a Flip+U run, and "dropped" when its mirrors were not trained."""
+    conf = metric(r, "plane_confidence") if r else None
+    if conf is None:
+        return "-"
+    return f"{conf:.2f}" + (" (dropped)" if metric(r, "mirrors_trained") is False else "")
 
 
 def time_table(rows: list[dict], methods: list[str]) -> str:

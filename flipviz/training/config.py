@@ -71,6 +71,12 @@ class TrainConfig:
     symmetric about it, on any trajectory) or lookat (the paper: reflect the centre, back onto the sphere,
     look at its centre; the same when the plane holds the sphere centre and the cameras look at it).
     Measured on the turned chair, configuration 1, true plane: 22.76 vs 18.51 dB (benchmarks/bench_plane.py)."""
+    plane_file: Path | None = None
+    """With --mirror-plane auto: read the estimate from this plane.json when it exists (another run's on
+    the same inputs, e.g. Flip beside Flip+U), else estimate it and write it there as well."""
+    unconfident_plane: Literal["drop", "use"] = "drop"
+    """With --mirror-plane auto, when the estimate is not confident (geometry/symmetry.py: CONFIDENT): drop
+    (train on the inputs only, as B/L does: a wrong or absent symmetry costs more than no mirror) or use it."""
     ba: bool = True
     """Bundle-adjust the mirrored poses (Flip methods)."""
     uncertainty: bool = True

@@ -15,7 +15,7 @@ is `flipviz.training.flip`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -42,6 +42,10 @@ class MethodSpec:
     @property
     def uses_beta(self) -> bool:
         return self.uncertain_inputs or self.uncertain_mirrors
+
+    def without_mirrors(self) -> MethodSpec:
+        """No mirrored view (nor their BA and uncertainty): a Flip run whose estimated plane is not confident."""
+        return replace(self, mirrors=False, ba=False, refine_inputs=False, uncertain_mirrors=False)
 
 
 def method_spec(cfg: TrainConfig) -> MethodSpec:

@@ -26,6 +26,7 @@ import torch
 from flipviz.data.cameras import View
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
+from flipviz.files import write_json
 from flipviz.geometry.symmetry import PlaneEstimate, SymmetryVolume, search_plane
 from flipviz.model import GridConfig, ModelConfig, RadianceModel
 from flipviz.model.fit import fit
@@ -82,15 +83,21 @@ def estimate_plane(inputs: list[View], scene: SceneData, device: str = "cpu", se
     return est
 
 
-def estimate_or_read(inputs: list[View], scene: SceneData, device: str, seed: int, saved: Path | None) -> PlaneEstimate:
+def estimate_or_read(
+    inputs: list[View], scene: SceneData, device: str, seed: int, saved: Path | None, shared: Path | None = None
+) -> PlaneEstimate:
     """The estimate of this run: read back from `saved` (plane.json of the run being resumed, so that
-    the mirrored poses the checkpoint refined stay the same), else estimated now."""
-    if saved is not None and saved.is_file():
-        try:
-            return PlaneEstimate.from_dict(json.loads(saved.read_text()))
-        except (ValueError, KeyError, TypeError) as e:
-            raise UserError(f"cannot read the estimated plane {saved} ({type(e).__name__}); delete it to estimate again") from None
+    the mirrored poses the checkpoint refined stay the same) or from `shared` (--plane-file), else
+    estimated now (and written to `shared`)."""
+    for path in (saved, shared):
+        if path is not None and path.is_file():
+            try:
+                return PlaneEstimate.from_dict(json.loads(path.read_text()))
+            except (ValueError, KeyError, TypeError) as e:
+                raise UserError(f"cannot read the estimated plane {path} ({type(e).__name__}); delete it to estimate again") from None
     est = estimate_plane(inputs, scene, device, seed)
     if not est.confident:
         log.warning("%s", est.summary())
+    if shared is not None:
+        write_json(shared, est.to_dict())
     return est

@@ -2,7 +2,8 @@
 
     split      = the protocol's inputs / unobserved tests / Upper views     (data/protocol.py),
                  or a capture's chosen inputs and held-out frames            (data/selection.py)
-    estimate   = with --mirror-plane auto, the plane estimated from inputs  (plane_estimate.py)
+    estimate   = with --mirror-plane auto, the plane estimated from inputs  (plane_estimate.py);
+                 not confident: no mirrored view is trained on (--unconfident-plane)
     mirrors    = flipped inputs with their initial poses                    (flip.py, step 1)
     training   = the method's views and their ray bank                      (methods.py)
     model      = radiance field + renderer                                  (model/radiance.py)
@@ -12,6 +13,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,11 +31,13 @@ from flipviz.training.config import PAPER_LR_DECAY, TrainConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
 from flipviz.training.plane_estimate import estimate_or_read
 
+log = logging.getLogger("flipviz.training")
+
 
 @dataclass
 class RunSetup:
     scene: SceneData
-    spec: MethodSpec
+    spec: MethodSpec  # without mirrors when an unconfident plane was dropped (cfg.method still names the method)
     split: Split
     mirrors: MirrorSet  # built for every method, so that the app can show the would-be mirrors
     estimate: PlaneEstimate | None  # --mirror-plane auto (Flip methods)
@@ -75,7 +79,10 @@ def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = 
     split = run_split(cfg, scene)
     estimate = None
     if cfg.mirror_plane == "auto" and spec.mirrors:
-        estimate = estimate_or_read(split.inputs, scene, cfg.device, cfg.seed, saved_estimate)
+        estimate = estimate_or_read(split.inputs, scene, cfg.device, cfg.seed, saved_estimate, cfg.plane_file)
+        if not estimate.confident and cfg.unconfident_plane == "drop":
+            log.warning("training without the mirrored views: the plane is not confident (--unconfident-plane use keeps them)")
+            spec = spec.without_mirrors()
     mirrors = flip.mirrored_views(cfg, split.inputs, scene, estimate.plane if estimate else None)
     training = build_training_set(
         spec, split.inputs, flip.mirrored_train_views(spec, mirrors, scene.bbox), split.uppers, device=device

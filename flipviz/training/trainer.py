@@ -33,6 +33,7 @@ from flipviz.geometry.coverage import coverage
 from flipviz.geometry.poses import pose_errors
 from flipviz.geometry.symmetry import PlaneEstimate, plane_error
 from flipviz.model.objective import psnr
+from flipviz.runtime import keep_freed_memory
 from flipviz.training import artifacts
 from flipviz.training.artifacts import PLANE_FILE
 from flipviz.training import checkpoint as ckpt
@@ -79,6 +80,7 @@ class Trainer:
         nor written, and `run()` refuses."""
         self.cfg = cfg.validate()
         self.read_only = read_only
+        keep_freed_memory()  # a step's large temporaries reuse the last step's memory (runtime.py)
         torch.manual_seed(cfg.seed)
         self._gen = torch.Generator().manual_seed(cfg.seed)
         self.scene = scene if scene is not None else load_scene_for(cfg)
@@ -262,7 +264,7 @@ class Trainer:
         )  # fmt: skip
         # the mirrors this configuration gives (built for every method, so B/L rows carry it too)
         m["coverage"] = coverage([v.camera for v in tests], [v.camera for v in self.mirrors.views], self.mirrors.sphere.center)
-        if self.spec.mirrors:
+        if self.spec.mirrors or self.plane_estimate is not None:
             m["plane"] = self._plane_report()
         pose = self._pose_report()
         if pose:
@@ -358,8 +360,8 @@ class Trainer:
 
     def _plane_report(self) -> dict:
         """The mirror plane used, its estimate (auto), and its error against the scene's true plane."""
-        rep: dict = {"used": self.mirrors.plane.to_dict(), "preset": self.cfg.mirror_plane}
-        if self.plane_estimate is not None:
+        rep: dict = {"used": self.mirrors.plane.to_dict(), "preset": self.cfg.mirror_plane, "trained": self.spec.mirrors}
+        if self.plane_estimate is not None:  # not trained: dropped for its confidence (--unconfident-plane)
             rep["confidence"] = self.plane_estimate.confidence
             rep["estimate_seconds"] = self.plane_estimate.seconds
         true = self.scene.symmetry_plane

@@ -140,7 +140,7 @@ class MirrorLesson:
         self.frustum_shows.on_update(lambda _: self._show_frustum_images())
         self.last_images: ImagesEvent | None = None
         self.quad: viser.MeshHandle | None = None  # the mirror plane, drawn apart from its gizmo
-        self.trains_mirrors = True
+        self.trains_mirrors, self.dropped = True, False
 
     # ---- per run ----------------------------------------------------------------------------
     def build(self, setup: SetupEvent) -> None:
@@ -152,7 +152,9 @@ class MirrorLesson:
             self.up = np.asarray(setup.up, dtype=np.float64)
             self.pose = str(setup.settings.get("mirror_pose", "reflect"))
             plane = setup.plane
-            if plane is None:  # a method without mirrors: show the plane it would use
+            if plane is None and setup.plane_estimate is not None:  # estimated, dropped: not confident
+                plane = setup.plane_estimate.plane
+            elif plane is None:  # a method without mirrors: show the plane it would use
                 try:
                     preset = str(setup.settings.get("mirror_plane", "official"))
                     plane = mirror_plane(preset, self.inputs, self.sphere, setup.true_plane)
@@ -173,6 +175,7 @@ class MirrorLesson:
             )  # fmt: skip
             self.preview, self.preview_frame = [], None
             self.trains_mirrors = setup.plane is not None
+            self.dropped = setup.plane is None and setup.plane_estimate is not None  # a Flip run, plane not confident
             self.moved = False
             self.gizmo.on_update(self._on_gizmo)
             self._apply_plane(plane)
@@ -271,7 +274,12 @@ class MirrorLesson:
             plane.normal, self.train_plane.normal
         )
         where = f"Plane: point ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f})"
-        if not self.trains_mirrors:
+        if not self.trains_mirrors and self.dropped:
+            self.plane_text.content = where + (
+                " - the estimate is **not confident**, so this run trains on **no** mirrored view "
+                "(`--unconfident-plane use` keeps them)."
+            )
+        elif not self.trains_mirrors:
             self.plane_text.content = where + (
                 " - this method trains on **no** mirrored view; this is the plane a Flip run would use."
             )
