@@ -155,6 +155,18 @@ def test_bench_runs_use_the_train_defaults():
     assert {k: getattr(BenchConfig, k) for k in shared} == {k: getattr(TrainConfig, k) for k in shared}
 
 
+def test_flip_runs_of_a_configuration_share_one_estimated_plane(tmp_path: Path, cache: Path, monkeypatch) -> None:
+    """--mirror-plane auto (the default): Flip estimates the plane, Flip+U reads it (the same, no second fit)."""
+    monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
+    cfg = BenchConfig(scenes="chair", methods="flip,flip+u", configs="1", res=24, steps=20, batch_rays=256,
+                      grid_res=(16,), n_samples=32, out=tmp_path / "b", cpus_per_run=1, quiet=True)  # fmt: skip
+    res = _results(run_bench(cfg))
+    assert sorted(v["status"] for v in res.values()) == ["ok", "ok"], res
+    (shared,) = (tmp_path / "b" / "planes").glob("chair-c1-*.json")
+    planes = [json.loads((tmp_path / "b" / "runs" / k / "plane.json").read_text()) for k in res]
+    assert planes[0] == planes[1] == json.loads(shared.read_text())  # the estimate's own timing too: read, not redone
+
+
 def test_bench_on_ray(tmp_path: Path, cache: Path, monkeypatch) -> None:
     ray = pytest.importorskip("ray")
     monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))

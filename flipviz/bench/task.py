@@ -107,14 +107,9 @@ def execute_run(task: RunTask | dict) -> dict:
     }  # fmt: skip
     try:
         result["versions"] = versions()
-        from flipviz.training.config import TrainConfig
-        from flipviz.training.run import train
+        from flipviz.training.run import run_config, train
 
-        kw = dict(task.train)
-        for k in ("data", "out", "rrd", "resume"):
-            if kw.get(k) is not None:
-                kw[k] = Path(kw[k])
-        cfg = TrainConfig(**kw)
+        cfg = run_config(task.train)
         _, metrics = train(cfg, [_progress_observer(task)] if task.progress else [], resume_unfinished=True)
         status = metrics["status"]
         ok = status == "finished"
