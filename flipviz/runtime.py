@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 import sys
 
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (malloc.h)
@@ -20,8 +21,8 @@ _applied = False
 def keep_freed_memory() -> None:
     """Large allocations come from the heap and freed memory stays there (glibc only; else nothing)."""
     global _applied
-    if _applied or not sys.platform.startswith("linux"):
-        return
+    if _applied or not sys.platform.startswith("linux") or os.environ.get("FLIPVIZ_GLIBC_MALLOC") == "default":
+        return  # FLIPVIZ_GLIBC_MALLOC=default keeps glibc's settings (benchmarks/bench_run_time.py compares)
     _applied = True
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")

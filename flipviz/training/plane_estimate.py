@@ -69,14 +69,16 @@ def symmetry_volume(model: RadianceModel, inputs: list[View], box: np.ndarray, r
 
 
 def estimate_plane(inputs: list[View], scene: SceneData, device: str = "cpu", seed: int = 0) -> PlaneEstimate:
-    """The mirror plane of the object the `inputs` see, with its confidence (module docstring)."""
+    """The mirror plane of the object the `inputs` see, with its confidence (module docstring). The
+    run's random state is left as it was: a Flip run that drops its mirrors then trains exactly B/L."""
     t0 = time.perf_counter()
-    torch.manual_seed(seed)
-    field = GridConfig(grid_res=FIT_GRID, upsample_at=(0.3,))
-    model = RadianceModel(ModelConfig(field=field, n_samples=FIT_SAMPLES), scene.bbox, scene.near, scene.far, with_beta=False, device=device)
-    fit(model, inputs, FIT_STEPS, batch_rays=FIT_BATCH, seed=seed)
-    t_fit = time.perf_counter() - t0
-    est = search_plane(symmetry_volume(model, inputs, scene.bbox), scene.up, scene.up_known, seed)
+    with torch.random.fork_rng(devices=[] if str(device) == "cpu" else None):
+        torch.manual_seed(seed)
+        field = GridConfig(grid_res=FIT_GRID, upsample_at=(0.3,))
+        model = RadianceModel(ModelConfig(field=field, n_samples=FIT_SAMPLES), scene.bbox, scene.near, scene.far, with_beta=False, device=device)
+        fit(model, inputs, FIT_STEPS, batch_rays=FIT_BATCH, seed=seed)
+        t_fit = time.perf_counter() - t0
+        est = search_plane(symmetry_volume(model, inputs, scene.bbox), scene.up, scene.up_known, seed)
     est.seconds = time.perf_counter() - t0
     est.meta.update({"fit_seconds": t_fit, "fit_steps": FIT_STEPS, "up_known": bool(scene.up_known)})
     log.info("%s (%.1f s)", est.summary(), est.seconds)

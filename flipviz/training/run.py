@@ -41,6 +41,7 @@ def run_config(settings: dict) -> TrainConfig:
     """A run's TrainConfig from its settings as saved (checkpoint["config"], metrics.json's "settings")."""
     names = {f.name for f in fields(TrainConfig)}
     kw = {k: v for k, v in settings.items() if k in names}
+    kw.setdefault("unconfident_plane", "use")  # saved before the option existed: any plane was trained with
     for k in ("data", "out", "rrd", "resume", "plane_file"):
         if kw.get(k) is not None:
             kw[k] = Path(kw[k])
