@@ -5,7 +5,8 @@
 Each measurement is a fresh process, as a bench worker is, with one torch thread (the bench runs two
 at once on the 2-core machine): importing flipviz and torch, loading the scene, building the run
 (its plane estimate apart), the training steps, and the rest of `run()` (evaluation of the 8
-unobserved views, checkpoint, renders and metrics files). Twice: with flipviz's allocator setting
+unobserved views, checkpoint, renders and metrics files), after one import to warm the page cache.
+Twice: with flipviz's allocator setting
 (flipviz/runtime.py) and with glibc's defaults (FLIPVIZ_GLIBC_MALLOC=default). Run it on an idle machine.
 """
 
@@ -75,6 +76,7 @@ def main(args: Args) -> None:
 
     cmd = [sys.executable, __file__, "--child", "--scene", args.scene, "--method", args.method, "--config",
            str(args.config), "--res", str(args.res), "--steps", str(args.steps), "--threads", str(args.threads)]  # fmt: skip
+    subprocess.run([sys.executable, "-c", "import flipviz.training.trainer"], check=True)  # warm the page cache
     res = {}
     for mode in ("flipviz", "default"):
         env = dict(os.environ, FLIPVIZ_GLIBC_MALLOC=mode)

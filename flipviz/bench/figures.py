@@ -9,7 +9,7 @@ import numpy as np
 from flipviz.bench.config import BenchConfig, parse_methods
 from flipviz.bench.paper_numbers import METHOD_LABELS, METHOD_ORDER, TABLE3
 from flipviz.bench.results import main_rows, paper_scene, scenes
-from flipviz.bench.tables import gain, metric
+from flipviz.bench.tables import coverage_run, gain, metric
 
 CHART_FILE = "psnr_chart.png"
 GAIN_FILE = "gain_vs_coverage.png"
@@ -73,7 +73,7 @@ def gain_chart(rows: list[dict], path: Path) -> Path | None:
         pts = []
         for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
             g = gain(rows, scene, n)
-            run = next((r for r in rows if r["scene"] == scene and r["config"] == n and metric(r, "mirror_angle_deg") is not None), None)
+            run = coverage_run(rows, scene, n)
             if g is not None and run is not None:
                 pts.append((metric(run, "mirror_angle_deg"), g, n))
         if pts:

@@ -173,12 +173,19 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
                 cells.append(_fmt(rs[0]["psnr"], "psnr") if rs else "-")
             if both:
                 g, go = gain(rows, scene, n), gain(rows, scene, n, "psnr_object")
-                any_run = next((r for r in rows if r["scene"] == scene and r["config"] == n and metric(r, "within_30") is not None), None)
+                cov = coverage_run(rows, scene, n)
                 cells += [f"{g:+.2f}" if g is not None else "-", f"{go:+.2f}" if go is not None else "-"]
-                cells += [f"{metric(any_run, 'mirror_angle_deg'):.1f}", f"{metric(any_run, 'within_30'):.0%}"] if any_run else ["-", "-"]
+                cells += [f"{metric(cov, 'mirror_angle_deg'):.1f}", f"{metric(cov, 'within_30'):.0%}"] if cov else ["-", "-"]
                 cells.append(plane_cell(next((r for r in main_rows(rows, scene, "flip+u") if r["config"] == n), None)))
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def coverage_run(rows: list[dict], scene: str, config: int) -> dict | None:
+    """The run whose coverage a configuration reports: its Flip+U run's (the mirrors it was given: with
+    --mirror-plane auto, B/L's would-be mirrors use another plane), else any run's."""
+    have = [r for r in ok_rows(rows) if r["scene"] == scene and r["config"] == config and metric(r, "within_30") is not None]
+    return next((r for r in have if r["method"] == "flip+u" and r.get("default_flags", True)), have[0] if have else None)
 
 
 def plane_cell(r: dict | None) -> str:
