@@ -50,6 +50,7 @@ def one_line_error(r, code: int = 2) -> str:
 # ------------------------------------------------------------------------- 1: a save is never cut
 SAVE_CHILD = textwrap.dedent("""
     import os, signal, sys, torch
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C as in a terminal (a background job ignores it)
     from flipviz.training.config import TrainConfig
     from flipviz.training.trainer import Trainer
     tr = Trainer(TrainConfig(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), mirror_plane="official", out=sys.argv[1]))
