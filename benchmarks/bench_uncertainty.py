@@ -75,12 +75,12 @@ def run_folder(args: Args, scene: str, config: int, name: str) -> Path:
 
 def mirrored_pixels(folder: Path) -> dict:
     """Part 1 for one Flip+U run: the share of lying pixels, covered or not, and beta^2 on each class."""
-    from flipviz.data.builtin import render_view, true_depth
+    from flipviz.data.builtin import builtin_name, render_view, true_depth
     from flipviz.training.run import open_run
 
     t = open_run(folder)
     scene, inputs = t.scene, t.split.inputs
-    name = scene.source.removeprefix("builtin:")
+    name = builtin_name(scene)
     in_depth = [true_depth(scene, v.camera) for v in inputs]
     classes: dict[str, list[np.ndarray]] = {"agrees": [], "lies, covered": [], "lies, not covered": []}
     counts = dict.fromkeys(classes, 0)

@@ -41,6 +41,7 @@ log = logging.getLogger("flipviz.app")
 
 MODES = ("off", "split", "side by side", "difference")
 NONE = "(choose a run)"
+NO_B = "_No run B yet._"  # the tab's line until a run B is loaded or trained
 
 
 def split_image(a: np.ndarray, b: np.ndarray, divider: float) -> np.ndarray:
@@ -111,7 +112,7 @@ class ComparePanel:
         self.server, self.run, self.run_config, self.run_dir, self.scene = server, run, run_config, run_dir, scene
         self.search, self.on_change = search, on_change
         self.b: RunB | None = None
-        self._note = "_No run B yet._"  # what the tab says while there is no B (loading, or why it failed)
+        self._note = NO_B  # what the tab says while there is no B (loading, or why it failed)
         self._lock = threading.Lock()
         self.scores: dict[str, tuple[float, float]] = {}  # snapped view name -> (PSNR A, PSNR B)
         self._scored_at: dict[str, tuple[int, int]] = {}  # snapped view name -> (A's step, B's step) of its scores
@@ -127,7 +128,7 @@ class ComparePanel:
                                             hint="Same scene, views and steps; both share the CPU")  # fmt: skip
         self.mode_dd = gui.add_dropdown("Show", MODES, initial_value="off")
         self.divider = gui.add_slider("Divider", 0.0, 1.0, 0.01, 0.5, hint="Split: where A ends and B begins")
-        self.status_md = gui.add_markdown("_No run B yet._")
+        self.status_md = gui.add_markdown(NO_B)
         with gui.add_folder("Camera path"):
             self.keys_md = gui.add_markdown("No keyframes. Move your camera and add some.")
             self.add_key_btn = gui.add_button("Add keyframe", icon=viser.Icon.CAMERA_PLUS)
@@ -197,7 +198,7 @@ class ComparePanel:
     def _set_b(self, b: RunB) -> None:
         with self._lock:
             old, self.b = self.b, b
-        self._note = "_No run B yet._"
+        self._note = NO_B
         if old is not None:
             old.stop()
         self.scores.clear()
