@@ -167,6 +167,39 @@ def test_flip_runs_of_a_configuration_share_one_estimated_plane(tmp_path: Path, 
     assert planes[0] == planes[1] == json.loads(shared.read_text())  # the estimate's own timing too: read, not redone
 
 
+def test_a_flip_run_that_drops_its_mirrors_takes_its_b_l_twins_result(tmp_path: Path, cache: Path, monkeypatch) -> None:
+    """With an unconfident plane (the chair's inputs at 24 px), Flip and Flip+U train B/L exactly; the
+    bench takes B/L's finished result instead of training it twice: the same scores (checked against
+    a Flip run that does train), the run's own plane report, and the test renders."""
+    monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
+    kw = dict(scenes="chair", configs="1", res=24, steps=20, batch_rays=256, grid_res=(16,), n_samples=32,
+              workers=1, cpus_per_run=1, quiet=True)  # fmt: skip
+    res = _results(run_bench(BenchConfig(methods="bl,flip,flip+u", out=tmp_path / "b", **kw)))
+    by = {v["method"]: v for v in res.values()}
+    assert all(v["status"] == "ok" for v in res.values()), res
+    bl = by["bl"]
+    for m in ("flip", "flip+u"):
+        r = by[m]
+        metrics = json.loads((tmp_path / "b" / "runs" / r["key"] / "metrics.json").read_text())
+        assert metrics["plane"]["trained"] is False and metrics["plane"]["confidence"] < 0.25  # dropped
+        assert r["reused_from"] == bl["key"] and r["psnr"] == bl["psnr"] and r["ssim"] == bl["ssim"]
+        assert metrics["method"] == m and metrics["reused_from"] == bl["key"]
+        renders = sorted(p.name for p in (tmp_path / "b" / "runs" / r["key"] / "test_renders").glob("*.png"))
+        assert len(renders) == 16
+    # the claim behind the reuse: the Flip run, trained, gives B/L's scores to the last digit
+    (trained,) = _results(run_bench(BenchConfig(methods="flip", out=tmp_path / "alone", **kw))).values()
+    assert "reused_from" not in trained and trained["psnr"] == bl["psnr"] and trained["ssim"] == bl["ssim"]
+    # a Flip run that keeps its mirrors never takes a twin's result
+    from flipviz.bench.task import RunTask, _finished_twin
+    from flipviz.training.run import make_trainer
+
+    spec = plan(BenchConfig(methods="flip", **kw))[0]
+    keeps = make_trainer(spec.train_config(BenchConfig(methods="flip", mirror_plane="official", **kw), tmp_path / "keeps"))
+    keeps.close()
+    assert keeps.spec.mirrors
+    assert _finished_twin(RunTask("k", str(tmp_path / "keeps"), {}, {}, twin=str(tmp_path / "b" / "runs" / bl["key"])), keeps) is None
+
+
 def test_bench_on_ray(tmp_path: Path, cache: Path, monkeypatch) -> None:
     ray = pytest.importorskip("ray")
     monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
@@ -209,8 +242,9 @@ def test_plan_keys_and_ablation(tmp_path: Path) -> None:
     # ... and nothing that does not (output folder, workers, executor).
     same = BenchConfig(**{**cfg.__dict__, "out": tmp_path, "workers": 2, "executor": "ray"})
     assert s.key(same) == s.key(cfg)
-    # A configuration's Flip runs share one estimated plane: Flip first, Flip+U last, one file per configuration.
-    assert [x.method for x in specs[:5]] == ["flip", "bl", "bl+u", "upper", "flip+u"]
+    # B/L starts first (a Flip run that drops its mirrors takes its result), Flip+U last (the Flip runs
+    # of a configuration share one estimated plane: one file per configuration).
+    assert [x.method for x in specs[:5]] == ["bl", "bl+u", "flip", "upper", "flip+u"]
     files = {(x.scene, x.config, x.method): x.train_config(cfg, tmp_path / x.key(cfg), tmp_path / "planes").plane_file for x in specs}
     assert files[("chair", 1, "flip")] == files[("chair", 1, "flip+u")] != files[("chair", 2, "flip")] != files[("mug", 2, "flip")]
     assert files[("chair", 1, "bl")] is None and files[("chair", 1, "flip")].parent == tmp_path / "planes"

@@ -64,9 +64,9 @@ def make(kind: str, with_beta: bool = True, beta2_mode: str = "linear", beta_min
 def bump_density(model: RadianceModel) -> None:
     """Make the grid visibly non-empty (a solid core) so that weights are not all tiny."""
     with torch.no_grad():
-        g = model.field.density_grid
-        Z, Y, X = g.shape[2:]
-        g[..., Z // 4 : 3 * Z // 4, Y // 4 : 3 * Y // 4, X // 4 : 3 * X // 4] = 20.0
+        g = model.field.density_grid  # (Z, Y, X, 1)
+        Z, Y, X = g.shape[:3]
+        g[Z // 4 : 3 * Z // 4, Y // 4 : 3 * Y // 4, X // 4 : 3 * X // 4] = 20.0
         g.add_(torch.randn_like(g))
         model.field.rgbnet[-1].bias.add_(torch.randn(4))
 
@@ -195,6 +195,49 @@ def test_fit_reduces_loss_and_checkpoint_round_trip(kind, chair32):
     for k in ("rgb", "depth", "opacity", "beta2"):
         assert np.array_equal(a[k], b[k]), k
     assert a["rgb"].shape == (32, 32, 3) and a["beta2"].shape == (32, 32)
+
+
+def test_grid_lookup_equals_grid_sample_in_value_and_gradient():
+    """The channels-last gather is trilinear interpolation exactly as grid_sample computes it
+    (align_corners=True, border padding): values, and gradients to the grid and to the points,
+    inside the box, on its faces and outside it."""
+    import torch.nn.functional as F
+
+    torch.manual_seed(0)
+    bbox = np.array([[-1.0, -0.5, -0.25], [1.0, 0.5, 0.75]])  # unequal sides: (Z, Y, X) = (9, 9, 17)
+    f = GridConfig(grid_res=(17,), upsample_at=()).build(bbox, with_beta=False, beta_init=0.1, device="cpu")
+    grid = torch.randn(*f.resolution, 5, requires_grad=True)  # (Z, Y, X, C)
+    lo, hi = torch.tensor(bbox[0]).float(), torch.tensor(bbox[1]).float()
+    x = lo + (hi - lo) * (torch.rand(400, 3) * 1.4 - 0.2)  # a fifth of the way outside on every side
+    x = torch.cat([x, lo[None], hi[None], torch.stack([lo[0], hi[1], lo[2]])[None]]).requires_grad_(True)
+    ours = f._lerp(grid, f.corners(x))  # (P, C)
+    planes = grid.permute(3, 0, 1, 2)[:, None]  # (C, 1, Z, Y, X): one volume per channel
+    g = ((x - lo) / (hi - lo) * 2 - 1).view(1, 1, 1, -1, 3).expand(5, 1, 1, -1, 3)
+    ref = F.grid_sample(planes, g, mode="bilinear", padding_mode="border", align_corners=True).view(5, -1).t()
+    torch.testing.assert_close(ours, ref, atol=1e-5, rtol=1e-5)
+    w = torch.randn_like(ref)
+    g_ours = torch.autograd.grad((ours * w).sum(), (grid, x))
+    g_ref = torch.autograd.grad((ref * w).sum(), (grid, x))
+    torch.testing.assert_close(g_ours[0], g_ref[0], atol=1e-5, rtol=1e-5)
+    inside = ((x > lo) & (x < hi)).all(-1)  # on and outside the faces the clamp's gradient is a convention
+    torch.testing.assert_close(g_ours[1][inside], g_ref[1][inside], atol=1e-3, rtol=1e-4)
+    assert f._lerp(grid, f.corners(torch.zeros(0, 3))).shape == (0, 5)  # no sample (e.g. nothing occupied)
+
+
+def test_checkpoints_of_planar_grids_load_into_channels_last_grids():
+    """A run saved with the grids as (C, 1, Z, Y, X) volumes loads to the same field."""
+    m = make("grid")
+    bump_density(m)
+    with torch.no_grad():
+        m.field.feat_grid.normal_()
+    state = m.state_dict()
+    old = {k: (v.permute(3, 0, 1, 2)[:, None].contiguous() if k.endswith(("density_grid", "feat_grid")) else v)
+           for k, v in state.items()}  # fmt: skip
+    m2 = make("grid")
+    m2.load_state_dict(old)
+    x = torch.rand(100, 3) * 2 - 1
+    torch.testing.assert_close(m2.field.density(x), m.field.density(x))
+    torch.testing.assert_close(m2.field.color(x, x / x.norm(dim=-1, keepdim=True))[0], m.field.color(x, x / x.norm(dim=-1, keepdim=True))[0])
 
 
 def test_pose_gradients_flow_through_grid(chair32):

@@ -121,11 +121,11 @@ def test_a_mirror_symmetric_field_renders_the_flipped_image_from_the_exact_refle
     cfg = ModelConfig(GridConfig(grid_res=(17,), upsample_at=(), view_dependent=False), n_samples=64)
     model = RadianceModel(cfg, bbox, 1.0, 6.0, with_beta=True)
     f = model.field
-    with torch.no_grad():  # random grids, made symmetric about x = 0 (the grids' last axis is x)
+    with torch.no_grad():  # random grids (Z, Y, X, C), made symmetric about x = 0
         f.density_grid.copy_(4.0 * torch.randn_like(f.density_grid))
         f.feat_grid.copy_(torch.randn_like(f.feat_grid))
         for g in (f.density_grid, f.feat_grid):
-            g.copy_(0.5 * (g + g.flip(-1)))
+            g.copy_(0.5 * (g + g.flip(2)))
     cam = Camera(look_at(np.array([2.0, -2.5, 1.5]), np.array([0.1, 0.2, 0.0])), 40, 30, 35.0, "c")
     plane = Plane(np.zeros(3), np.array([1.0, 0.0, 0.0]))
     a, b = model.render_image(cam), model.render_image(exact_reflected_camera(cam, plane))

@@ -102,8 +102,9 @@ def resolve_scene(name: str, data_root: Path | None) -> tuple[str, str | None]:
 
 
 def plan(cfg: BenchConfig) -> list[RunSpec]:
-    """Every run of the bench, each once, in order scene -> configuration -> method, where a
-    configuration's Flip runs first and its Flip+U last: by then the plane they share is estimated."""
+    """Every run of the bench, each once, in order scene -> configuration -> method: a configuration's
+    B/L first, its Flip after B/L and B/L+U (a Flip run that drops its mirrors takes B/L's finished
+    result) and its Flip+U last (by then the plane the Flip runs share is estimated)."""
     if cfg.res < 8 or cfg.steps < 1 or cfg.workers < 1:
         raise UserError("--res must be >= 8, --steps >= 1 and --workers >= 1")
     methods, configs = parse_methods(cfg.methods), parse_configs(cfg.configs)
@@ -114,7 +115,7 @@ def plan(cfg: BenchConfig) -> list[RunSpec]:
     specs: dict[str, RunSpec] = {}
     for scene, data in scenes:
         for n in configs:
-            for m in sorted(methods, key=lambda m: {"flip": 0, "flip+u": 2}.get(m, 1)):
+            for m in sorted(methods, key=RUN_ORDER.index):
                 s = RunSpec(scene, data, m, n)
                 specs.setdefault(s.key(cfg), s)
             if cfg.ablation:  # Table II: Flip (no U) / Flip+U, each with and without BA
@@ -122,6 +123,16 @@ def plan(cfg: BenchConfig) -> list[RunSpec]:
                     s = RunSpec(scene, data, "flip+u" if u else "flip", n, ba=ba)
                     specs.setdefault(s.key(cfg), s)
     return list(specs.values())
+
+
+RUN_ORDER = ("bl", "bl+u", "flip", "upper", "flip+u")  # a configuration's runs, in the order they start
+
+
+def twin_of(spec: RunSpec, cfg: BenchConfig) -> RunSpec | None:
+    """The B/L run a Flip run repeats exactly when its estimated plane is not confident (see task.py)."""
+    if spec.method not in ("flip", "flip+u") or cfg.mirror_plane != "auto":
+        return None
+    return RunSpec(spec.scene, spec.data, "bl", spec.config)
 
 
 def _prewarm(specs: list[RunSpec], res: int) -> None:
@@ -181,7 +192,7 @@ def run_bench(cfg: BenchConfig) -> Path:
         tasks = [
             RunTask(key=k, run_dir=str(out / "runs" / k), train=s.train_config(cfg, out / "runs" / k, out / "planes").to_dict(),
                     labels=s.labels(), threads=threads, progress=not cfg.quiet,
-                    keep_checkpoint=cfg.keep_checkpoints)
+                    keep_checkpoint=cfg.keep_checkpoints, twin=str(out / "runs" / t.key(cfg)) if (t := twin_of(s, cfg)) else "")
             for k, s in todo
         ]  # fmt: skip
         bar = tqdm(total=len(specs), initial=len(results), desc="bench", unit="run", position=0,

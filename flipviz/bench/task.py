@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import sys
 import time
 import traceback
@@ -16,7 +17,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from flipviz.bench.results import RESULT_FILE, STARTED_FILE
+from flipviz.bench.results import RESULT_FILE, STARTED_FILE, read_result
 from flipviz.files import write_json
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 
@@ -35,6 +36,7 @@ class RunTask:
     ship_files: bool = False  # return small output files (for runs on another machine)
     slot: int = 0  # per-run progress-bar row
     keep_checkpoint: bool = False  # else checkpoint.pt is deleted once the result is written
+    twin: str = ""  # Flip runs: the run folder of the B/L run they repeat exactly if they drop their mirrors
 
 
 def versions() -> dict[str, str]:
@@ -107,10 +109,17 @@ def execute_run(task: RunTask | dict) -> dict:
     }  # fmt: skip
     try:
         result["versions"] = versions()
-        from flipviz.training.run import run_config, train
+        from flipviz.training.run import make_trainer, run_config
 
-        cfg = run_config(task.train)
-        _, metrics = train(cfg, [_progress_observer(task)] if task.progress else [], resume_unfinished=True)
+        trainer = make_trainer(run_config(task.train), resume_unfinished=True)
+        twin = _finished_twin(task, trainer)
+        if twin is not None:
+            metrics = _reuse_twin(trainer, Path(task.twin), twin)
+            result["reused_from"] = twin["key"]
+        else:
+            if task.progress:
+                trainer.add_observer(_progress_observer(task))
+            metrics = trainer.run()  # Ctrl-C inside the loop ends it with status "stopped"
         status = metrics["status"]
         ok = status == "finished"
         lpips = metrics.get("lpips")
@@ -139,6 +148,30 @@ def execute_run(task: RunTask | dict) -> dict:
     if task.ship_files:
         result["_files"] = _collect_files(run_dir)
     return result
+
+
+def _finished_twin(task: RunTask, trainer) -> dict | None:
+    """The finished result of the B/L run that this run repeats step for step: a Flip run whose
+    estimated plane is not confident drops its mirrors (--unconfident-plane drop) and then trains
+    B/L exactly, with the same seed and the random state the estimate left untouched."""
+    if not task.twin or trainer.spec.mirrors or trainer.step > 0 or trainer.cfg.method not in ("flip", "flip+u"):
+        return None
+    r = read_result(Path(task.twin))
+    ok = r is not None and r.get("status") == "ok" and r.get("metrics") and (Path(task.twin) / "test_renders").is_dir()
+    return r if ok else None
+
+
+def _reuse_twin(trainer, twin_dir: Path, twin: dict) -> dict:
+    """This run's metrics without training it again: its own report (plane, confidence, coverage,
+    settings) with its twin's scores, training time and test renders."""
+    from flipviz.training import artifacts
+
+    trainer.close()
+    m = {**twin["metrics"], **trainer.report(), "per_view": twin.get("per_view", []), "reused_from": twin["key"],
+         "run_dir": str(trainer.run_dir)}  # fmt: skip
+    shutil.copytree(twin_dir / "test_renders", trainer.run_dir / "test_renders", dirs_exist_ok=True)
+    artifacts.write_metrics(trainer.run_dir, m)
+    return m
 
 
 def _num(x) -> float | None:

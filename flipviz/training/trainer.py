@@ -235,8 +235,9 @@ class Trainer:
         try:
             if status in ("finished", "stopped") and self.save_checkpoint() is not None:
                 if status == "finished" or cfg.eval_on_stop:
-                    metrics = self.evaluate()
-                    self._emit("on_images", self._images_event())
+                    renders = self.render_tests()  # rendered once, for the scores and the last images
+                    metrics = self.evaluate(renders)
+                    self._emit("on_images", self._images_event(renders))
         except KeyboardInterrupt:  # a second Ctrl-C skips the evaluation, keeps the checkpoint
             status = "stopped"
             message = f"interrupted during the final evaluation; checkpoint kept in {self.run_dir}"
@@ -244,31 +245,26 @@ class Trainer:
         except UserError as e:
             status, message, metrics = "error", str(e), {}
         finally:
-            self._lock_file.release()
+            self.close()
         metrics = dict(metrics, status=status, message=message, steps=self.step, run_dir=str(self.run_dir))
         self._emit("on_end", EndEvent(self.step, status, message, metrics))
         return metrics
 
     # ------------------------------------------------------------------ evaluation
-    def evaluate(self, write: bool = True) -> dict:
-        """Score the unobserved test views; write metrics.json, test_renders/, transforms.json."""
+    def render_tests(self) -> list[dict[str, np.ndarray]]:
+        """Renders (rgb, depth, opacity, beta2) of the unobserved test views, in split order."""
+        return [self.render(v.camera) for v in self.split.tests]
+
+    def evaluate(self, renders: list[dict[str, np.ndarray]] | None = None, write: bool = True) -> dict:
+        """Score the unobserved test views (`renders`: render_tests(), made when not given);
+        write metrics.json, test_renders/, transforms.json."""
         tests = self.split.tests
-        outs = [self.render(v.camera, ("rgb", "opacity", "depth")) for v in tests]
+        outs = self.render_tests() if renders is None else renders
         preds = [o["rgb"] for o in outs]
         structure = [ev.structure_scores(o["rgb"], v.rgb, o["opacity"], v.alpha, o["depth"], true_depth(self.scene, v.camera))
                      for o, v in zip(outs, tests)]  # fmt: skip
         m = ev.score_views(preds, [v.rgb for v in tests], [v.name for v in tests], structure)
-        m.update(
-            train_seconds=self.train_seconds, steps=self.step, method=self.cfg.method, config=self.split.config,
-            scene=self.scene.name, mirror_plane=self.cfg.mirror_plane, settings=self.cfg.to_dict(),
-        )  # fmt: skip
-        # the mirrors this configuration gives (built for every method, so B/L rows carry it too)
-        m["coverage"] = coverage([v.camera for v in tests], [v.camera for v in self.mirrors.views], self.mirrors.sphere.center)
-        if self.spec.mirrors or self.plane_estimate is not None:
-            m["plane"] = self._plane_report()
-        pose = self._pose_report()
-        if pose:
-            m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items()}
+        m.update(train_seconds=self.train_seconds, steps=self.step, **self.report())
         if write:
             try:
                 artifacts.write_test_renders(self.run_dir, [v.name for v in tests], preds, [v.rgb for v in tests])
@@ -279,6 +275,26 @@ class Trainer:
             except OSError as e:
                 raise UserError(f"cannot write the results in {self.run_dir}: {e.strerror or e}") from None
         return m
+
+    def report(self) -> dict:
+        """What a run's metrics say besides its scores: the run, its mirrors' coverage of the
+        unobserved views, its plane and its mirrored poses."""
+        tests = self.split.tests
+        m = dict(method=self.cfg.method, config=self.split.config, scene=self.scene.name,
+                 mirror_plane=self.cfg.mirror_plane, settings=self.cfg.to_dict())  # fmt: skip
+        # the mirrors this configuration gives (built for every method, so B/L rows carry it too)
+        m["coverage"] = coverage([v.camera for v in tests], [v.camera for v in self.mirrors.views], self.mirrors.sphere.center)
+        if self.spec.mirrors or self.plane_estimate is not None:
+            m["plane"] = self._plane_report()
+        pose = self._pose_report()
+        if pose:
+            m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items()}
+        return m
+
+    def close(self) -> None:
+        """Give the run folder back without training (run() does it when it ends)."""
+        if self._lock_file is not None:
+            self._lock_file.release()
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_state(self) -> dict:
@@ -382,12 +398,14 @@ class Trainer:
             rep.update(mirror_rot_err_deg=err[:, 0], mirror_trans_err=err[:, 1])
         return rep
 
-    def _rendered(self, kind, cam: Camera, gt: np.ndarray) -> RenderedView:
-        r = self.render(cam)
+    def _rendered(self, kind, cam: Camera, gt: np.ndarray, r: dict[str, np.ndarray] | None = None) -> RenderedView:
+        r = self.render(cam) if r is None else r
         return RenderedView(cam.name, kind, cam, r["rgb"], r["depth"], r["opacity"], r.get("beta2"), gt)
 
-    def _images_event(self) -> ImagesEvent:
-        tests = [self._rendered("test", v.camera, v.rgb) for v in self.split.tests]
+    def _images_event(self, test_renders: list[dict[str, np.ndarray]] | None = None) -> ImagesEvent:
+        """Test views and mirrored views with the current field (`test_renders`: render_tests(), if made)."""
+        rs = test_renders or [None] * len(self.split.tests)
+        tests = [self._rendered("test", v.camera, v.rgb, r) for v, r in zip(self.split.tests, rs)]
         mirrors = [self._rendered("mirror", c, v.image) for v, c in zip(self.training.mirror_views, self.mirror_cameras())]
         scalars = {"test_psnr": float(np.mean([ev.image_psnr(t.rgb, t.gt) for t in tests]))} if tests else {}
         return ImagesEvent(self.step, tests, mirrors, scalars)
