@@ -399,6 +399,26 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
     app.compare.stop()
 
 
+def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_path):
+    """The default gate: the chair's estimate from 24-px inputs is doubted (confidence below 0.25),
+    so the Flip+U run trains on no mirrored view, and the Mirror tab says so and why."""
+    cfg = AppConfig(scene="chair", res=24, steps=100_000, batch_rays=256, no_rrd=True, port=0, images_every=0,
+                    checkpoint_every=0, eval_on_stop=False, out=tmp_path / "run", view_width=64)  # fmt: skip
+    a = App(cfg).start()
+    try:
+        deadline = time.monotonic() + 120
+        while (a.setup is None or a.step < 1) and time.monotonic() < deadline:
+            assert a.status != "error", a.message
+            time.sleep(0.1)
+        assert a.setup is not None and a.setup.plane_estimate is not None, f"{a.status} {a.message}"
+        assert a.setup.plane is None and a.setup.plane_estimate.confidence < 0.25  # dropped
+        assert not a.trainer.spec.mirrors and not a.trainer.training.mirror_ids  # it trains B/L's views
+        text = a.mirror.plane_text.content
+        assert "**not confident**" in text and "trains on **no** mirrored view" in text, text
+    finally:
+        a.stop()
+
+
 def test_restart_with_another_method(app):
     async def go():
         async with ViserTestClient(url(app)) as c:

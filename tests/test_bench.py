@@ -186,6 +186,8 @@ def test_a_flip_run_that_drops_its_mirrors_takes_its_b_l_twins_result(tmp_path: 
         assert metrics["method"] == m and metrics["reused_from"] == bl["key"]
         renders = sorted(p.name for p in (tmp_path / "b" / "runs" / r["key"] / "test_renders").glob("*.png"))
         assert len(renders) == 16
+    rows = {r["method"]: r for r in csv.DictReader((tmp_path / "b" / "results.csv").open())}
+    assert rows["flip"]["reused_from"] == rows["flip+u"]["reused_from"] == bl["key"] and rows["bl"]["reused_from"] == ""
     # the claim behind the reuse: the Flip run, trained, gives B/L's scores to the last digit
     (trained,) = _results(run_bench(BenchConfig(methods="flip", out=tmp_path / "alone", **kw))).values()
     assert "reused_from" not in trained and trained["psnr"] == bl["psnr"] and trained["ssim"] == bl["ssim"]

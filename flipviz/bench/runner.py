@@ -209,7 +209,8 @@ def run_bench(cfg: BenchConfig) -> Path:
             bar.update(1)
             if res.get("status") == "ok":
                 psnr, secs = res.get("psnr") or float("nan"), res.get("train_seconds") or 0.0
-                log(f"done {key}: PSNR {psnr:.2f} in {secs:.0f} s", logfile)
+                how = f"taken from {res['reused_from']} (mirrors dropped)" if res.get("reused_from") else f"in {secs:.0f} s"
+                log(f"done {key}: PSNR {psnr:.2f} {how}", logfile)
             else:
                 log(f"FAILED {key}: {res.get('error', '')}", logfile)
 

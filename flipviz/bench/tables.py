@@ -15,7 +15,7 @@ from flipviz.files import write_json, write_text
 
 CSV_FIELDS = (
     "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "iou", "psnr_object", "depth_abs",
-    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "train_seconds",
+    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "reused_from", "train_seconds",
     "wall_seconds", "steps", "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
     "flipviz_version", "torch_version", "numpy_version",
 )  # fmt: skip

@@ -13,8 +13,9 @@ first (coarsest) grid, so a raw value means the same opacity per voxel at every 
 
 What makes it fast on a CPU (measured on the 2-core development machine):
 - the grids are channels-last (a voxel's C features are adjacent in memory), and a sample's eight
-  trilinear corners and weights are computed once for both lookups: a gather of whole rows,
-  about twice as fast as grid_sample's per-channel planes (benchmarks/bench_field.py);
+  trilinear corners and weights are computed once for both lookups: a gather of whole rows. The
+  feature lookup of 14k samples in a 128^3 grid, forward and backward, takes 24 ms against
+  grid_sample's 45 ms on per-channel planes (which this replaced: 600 lego steps 86 s -> 69 s);
 - an occupancy mask (refreshed from the density every few steps, dilated, with a threshold
   relative to the current maximum) drops samples in empty space before any lookup;
 - the renderer computes colour only where the sample weight exceeds 1e-4;
