@@ -301,8 +301,8 @@ def test_per_config_table_reports_the_flip_runs_coverage_and_plane() -> None:
     rows = [row("bl", 1, 20.0, 1.0, None), row("flip+u", 1, 20.0, 45.0, {"confidence": 0.1, "trained": False}),
             row("bl", 2, 20.0, 1.0, None), row("flip+u", 2, 21.5, 2.0, {"confidence": 0.3, "trained": True})]  # fmt: skip
     lines = per_config_table(rows, ["bl", "flip+u"]).splitlines()
-    assert lines[2].endswith("| +0.00 | - | 45.0 | 0% | 0.10 (dropped) |"), lines[2]
-    assert lines[3].endswith("| +1.50 | - | 2.0 | 100% | 0.30 |"), lines[3]
+    assert lines[2].endswith("| +0.00 | - | 45.0 | 0% | 0.100 (dropped) |"), lines[2]
+    assert lines[3].endswith("| +1.50 | - | 2.0 | 100% | 0.300 |"), lines[3]
 
 
 def test_paper_numbers_match_protocol_and_tex() -> None:

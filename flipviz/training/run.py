@@ -1,4 +1,4 @@
-"""One training run, blocking: the one way the CLI, the bench and the benchmarks train."""
+"""One training run, blocking: how the CLI, the bench and the benchmarks make a Trainer and train it."""
 
 from __future__ import annotations
 
