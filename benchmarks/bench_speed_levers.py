@@ -63,8 +63,7 @@ def train_one(job: tuple[str, str, int]) -> dict:
         scene = load_scene_for(cfg)
         trainer = Trainer(cfg, scene)
         field = trainer.model.field
-        field.cfg = replace(field.cfg, **LEVERS[lever])  # read by the field's schedule at every step
-        field.color_thresh = field._early_color_thresh()
+        field.cfg = replace(field.cfg, **LEVERS[lever])  # read by the field's schedule at every step, from step 0
         trainer.run()  # its test-view scores are not read here
         views = [scene.views[i] for i in HELD_OUT]
         psnrs = [image_psnr(trainer.render(v.camera, ("rgb",))["rgb"], v.rgb) for v in views]
