@@ -224,6 +224,27 @@ def test_grid_lookup_equals_grid_sample_in_value_and_gradient():
     assert f._lerp(grid, f.corners(torch.zeros(0, 3))).shape == (0, 5)  # no sample (e.g. nothing occupied)
 
 
+def test_query_colours_each_kept_sample_at_its_own_point_under_a_partial_mask():
+    """The colour(w) that query returns looks up the corners of the samples it keeps, not of
+    others: with half the grid pruned, its rgb equals color() at exactly those points."""
+    m = make("grid")
+    bump_density(m)
+    f = m.field
+    with torch.no_grad():
+        f.feat_grid.normal_()
+        f.occ[..., : f.occ.shape[2] // 2] = False  # prune the x < 0 half
+    o, d = random_rays(64)
+    x = o[:, None, :] + torch.linspace(1.0, 5.0, 32)[None, :, None] * d[:, None, :]  # (64, 32, 3)
+    sigma, colour = f.query(x, d)
+    assert 0 < int((sigma > 0).sum()) < sigma.numel()  # some samples pruned, some kept
+    w = (sigma > 0).float() * 0.5  # any weight above the threshold on every occupied sample
+    keep, rgb, raw = colour(w)
+    assert keep.numel() > 0
+    want, want_raw = f.color(x.reshape(-1, 3)[keep], d[keep // 32])
+    torch.testing.assert_close(rgb, want)
+    torch.testing.assert_close(raw, want_raw)
+
+
 def test_checkpoints_of_planar_grids_load_into_channels_last_grids():
     """A run saved with the grids as (C, 1, Z, Y, X) volumes loads to the same field."""
     m = make("grid")

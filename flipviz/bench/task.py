@@ -154,7 +154,7 @@ def _finished_twin(task: RunTask, trainer) -> dict | None:
     """The finished result of the B/L run that this run repeats step for step: a Flip run whose
     estimated plane is not confident drops its mirrors (--unconfident-plane drop) and then trains
     B/L exactly, with the same seed and the random state the estimate left untouched."""
-    if not task.twin or trainer.spec.mirrors or trainer.step > 0 or trainer.cfg.method not in ("flip", "flip+u"):
+    if not task.twin or trainer.spec.mirrors or trainer.step > 0:  # only Flip runs have a twin (runner.twin_of)
         return None
     r = read_result(Path(task.twin))
     ok = r is not None and r.get("status") == "ok" and r.get("metrics") and (Path(task.twin) / "test_renders").is_dir()

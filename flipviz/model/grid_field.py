@@ -144,9 +144,7 @@ class GridField(BoxField):
         def colour(w: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
             with torch.no_grad():  # w > 0 only where sigma > 0, so every kept sample is occupied
                 keep = torch.nonzero(w.reshape(-1) > self.color_thresh).squeeze(-1)  # (K,)
-                slot = torch.full((R * N,), -1, dtype=torch.long, device=x.device)
-                slot[occ] = torch.arange(occ.numel(), device=x.device)
-                at = slot[keep]  # (K,) rows of `corners`
+                at = torch.searchsorted(occ, keep)  # (K,) rows of `corners` (both index lists are sorted)
             rgb, raw = self._color((corners[0][at], corners[1][at]), d[keep // N])
             return keep, rgb, raw
 
