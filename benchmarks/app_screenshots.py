@@ -94,7 +94,8 @@ def compare_shot(args: Args) -> None:
 
     b_dir = Path(tempfile.mkdtemp()) / "chair-bl"
     train(TrainConfig(scene="chair", method="bl", out=b_dir, no_rrd=True))
-    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100, steps=600)
+    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100, steps=600,
+                    browse_root=(b_dir.parent,))
     app = App(cfg).start()
     try:
         wait_until(lambda: app.status == "finished", 900, what="training A")

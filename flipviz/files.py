@@ -111,3 +111,21 @@ def signals_deferred() -> Iterator[None]:
                 handler(noted[0], None)
             elif handler == signal.SIG_DFL:
                 signal.raise_signal(noted[0])
+
+
+def inside_roots(path: Path | str, roots: list[Path], what: str) -> Path:
+    """`path` resolved (links followed) when it lies in one of `roots`, else a one-line UserError.
+
+    For folders a browser names (the app's Compare and Restart): a browser may open only what the
+    person who started the app named on its command line, never `/etc` or `~/.ssh`.
+    """
+    try:
+        p = Path(path).expanduser().resolve()
+    except (OSError, RuntimeError, ValueError) as e:  # a link loop, a NUL byte
+        raise UserError(f"{what} {str(path)!r} is not a usable path ({type(e).__name__})") from None
+    resolved = [Path(r).expanduser().resolve() for r in roots]
+    if not any(p == r or p.is_relative_to(r) for r in resolved):
+        allowed = ", ".join(str(r) for r in sorted(set(resolved))) or "none"
+        raise UserError(f"{what} {str(path)!r} is outside the folders this app may open ({allowed}); "
+                        "start the app with --browse-root FOLDER to allow another")  # fmt: skip
+    return p

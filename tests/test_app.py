@@ -469,3 +469,43 @@ def test_a_malformed_message_is_one_log_line(app, caplog):
     recs = [r for r in caplog.records if r.name == "websockets.server"]
     assert recs and all(r.exc_info is None and "\n" not in r.getMessage() for r in recs)
     assert "DecodeError" in recs[0].getMessage()
+
+
+def test_a_browser_cannot_name_folders_outside_the_roots_nor_oversize_values(app):
+    """Security (docs/RELIABILITY.md): Compare's folder and Restart's data folder refuse paths the command
+    line did not name; a client's 6000 px "Max resolution" is clamped on the server."""
+
+    async def until(cond, what: str, timeout: float = 30.0) -> None:
+        t = time.monotonic()
+        while not cond():
+            assert time.monotonic() - t < timeout, what
+            await asyncio.sleep(0.05)
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0), size=(3000, 6000))
+            await c.wait_gui("Max resolution")
+            run_before = app._run_dir()
+            await c.set_value("Or a folder", "/etc")
+            await until(lambda: app.compare.path_txt.value == "/etc", "the folder never arrived")
+            await c.click("Load run B")
+            await until(lambda: "outside the folders this app may open" in app.compare.status_md.content,
+                        app.compare.status_md.content)  # fmt: skip
+            scene_dd = next(m for m in c.messages if m["type"] == "GuiDropdownMessage" and m["props"]["label"] == "Scene")
+            await c.send("GuiUpdateMessage", uuid=scene_dd["uuid"], updates={"value": "(a data folder)"})
+            await c.set_value("Data folder", "/root/.ssh")
+            await until(lambda: app.train.data_txt.value == "/root/.ssh", "the data folder never arrived")
+            await c.click("Restart training")
+            await until(lambda: "Not restarted" in app.train.restart_md.content, app.train.restart_md.content)
+            assert app._run_dir() == run_before and app.status == "running"  # A trains on
+            await c.send("GuiUpdateMessage", uuid=c.gui["Max resolution"]["uuid"], updates={"value": 6000})
+            view = list(app.views.clients.values())[-1]  # this client's (the newest)
+            await until(lambda: view.gui["max_width"].value == 1920 and view.max_width == 1920, "not clamped")
+            n = len(c.messages)
+            await c.send_camera((4.0, -4.1, 3.0), size=(3000, 6000))
+            bg = await c.wait_for(lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"], start=n, timeout=60)
+            assert jpeg(bg["rgb_data"]).shape[1] <= 1920 and view.max_width <= 1920
+            await c.set_value("Configuration", "../../etc")  # not one of the options: put back
+            await until(lambda: app.train.config_dd.value in [str(i) for i in range(1, 9)], "dropdown not guarded")
+
+    run(go())

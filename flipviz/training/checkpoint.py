@@ -3,10 +3,17 @@
 A checkpoint is only ever written from a finite training state, and always through a temporary
 file renamed over the old one, so the file on disk is the last good state even if the process
 dies or the loss turns NaN.
+
+Opening a checkpoint never runs code: it is read with torch's weights-only unpickler, which
+builds tensors, numbers, strings and plain containers and refuses anything else (a pickle can
+name any Python callable, and runs it when loaded). Runs are shared with a class and between
+researchers; a folder someone hands you is data, not a program. Every checkpoint flipviz has
+written holds only such data, so all of them still load.
 """
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import torch
@@ -39,13 +46,18 @@ def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") 
     try:
         p = checkpoint_path(path)
     except FileNotFoundError as e:
-        raise UserError(f"cannot resume: {e}") from None
+        raise UserError(f"cannot open the run: {e}") from None
     try:
-        state = torch.load(p, map_location=map_location, weights_only=False)
+        state = torch.load(p, map_location=map_location, weights_only=True)  # never runs code from the file
+    except pickle.UnpicklingError as e:
+        if "weights only" in str(e).lower():  # the file names a Python object (a function, a class) to build
+            raise UserError(f"cannot open {p}: it holds Python objects beyond tensors and plain data, and flipviz "
+                            "never loads those (loading could run code); it was not written by flipviz") from None  # fmt: skip
+        raise UserError(f"cannot open {p}: not a readable checkpoint (UnpicklingError)") from None
     except Exception as e:  # truncated, garbage, another format: torch and pickle raise many kinds
-        raise UserError(f"cannot resume: {p} is not a readable checkpoint ({type(e).__name__})") from None
+        raise UserError(f"cannot open {p}: not a readable checkpoint ({type(e).__name__})") from None
     if not isinstance(state, dict) or "step" not in state or "model" not in state:
-        raise UserError(f"cannot resume: {p} is not a flipviz checkpoint")
+        raise UserError(f"cannot open {p}: not a flipviz checkpoint")
     return state
 
 

@@ -330,26 +330,31 @@ class Trainer:
     def _load(self, path: Path | str) -> None:
         state = ckpt.load_checkpoint(path, map_location=self.model.device)
         theirs = state.get("config", {})
+        if not isinstance(theirs, dict):
+            raise UserError(f"cannot resume: {path} is not a flipviz checkpoint (its config is not a table)")
         for key in ("method", "field", "scene", "config"):
             if key in theirs and theirs[key] != getattr(self.cfg, key) and not (key == "scene" and self.cfg.data):
                 raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {getattr(self.cfg, key)!r}")
-        try:
+        try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
             self.model.load_state_dict(state["model"])
-        except (RuntimeError, KeyError) as e:
-            raise UserError(f"cannot resume: {path} does not fit this run's model ({str(e).splitlines()[0][:120]})") from None
-        self.opt_field = self.model.make_optimizer()
-        self.opt_field.load_state_dict(state["opt_field"])
-        if self.refiner is not None and state.get("poses") is not None:
-            self.refiner.load_state_dict(state["poses"])
-            self.opt_pose = self.refiner.make_optimizer()
-            if state.get("opt_pose") is not None:
-                self.opt_pose.load_state_dict(state["opt_pose"])
-        self.step = int(state["step"])
-        self.train_seconds = float(state.get("train_seconds", 0.0))
-        if state.get("rng") is not None:
-            self._gen.set_state(state["rng"])
-        if state.get("torch_rng") is not None:
-            torch.set_rng_state(state["torch_rng"])
+            self.opt_field = self.model.make_optimizer()
+            self.opt_field.load_state_dict(state["opt_field"])
+            if self.refiner is not None and state.get("poses") is not None:
+                self.refiner.load_state_dict(state["poses"])
+                self.opt_pose = self.refiner.make_optimizer()
+                if state.get("opt_pose") is not None:
+                    self.opt_pose.load_state_dict(state["opt_pose"])
+            step, seconds = state["step"], float(state.get("train_seconds", 0.0))
+            if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+                raise ValueError(f"step {step!r} is not a whole number >= 0")
+            self.step, self.train_seconds = step, seconds
+            if state.get("rng") is not None:
+                self._gen.set_state(state["rng"])
+            if state.get("torch_rng") is not None:
+                torch.set_rng_state(state["torch_rng"])
+        except (KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError) as e:
+            what = f"missing {e}" if isinstance(e, KeyError) else (str(e).splitlines() or [type(e).__name__])[0][:120]
+            raise UserError(f"cannot resume: {path} does not fit this run ({what})") from None
 
     # ------------------------------------------------------------------ events
     def _emit(self, name: str, event) -> None:

@@ -31,7 +31,7 @@ from flipviz.data import SceneData, load_scene
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.errors import UserError
-from flipviz.files import signals_deferred
+from flipviz.files import inside_roots, signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.training.checkpoint import CHECKPOINT_NAME
@@ -84,6 +84,9 @@ class AppConfig(TrainConfig):
     """At most this fraction of wall time goes to browser renders (they share the trainer's lock)."""
     keep_restart_checkpoints: bool = False
     """Keep the checkpoint.pt of runs replaced by an in-app restart (each is tens of MB)."""
+    browse_root: tuple[Path, ...] = ()
+    """Folders a browser may open runs (Compare) and data (Restart) from, besides runs/, the folder
+    beside this app's run folders and --data. Anything else typed in the browser is refused."""
 
 
 def train_config(cfg: TrainConfig) -> TrainConfig:
@@ -134,6 +137,7 @@ class App(Observer):
     def __init__(self, cfg: AppConfig, scene: SceneData | None = None) -> None:
         self.cfg = cfg
         self._base_out = cfg.out  # restarts write beside it: <out>-restart1, <out>-restart2, ...
+        self._first = cfg  # the command line's settings (browse roots); self.cfg follows restarts
         self._preloaded = (_scene_key(cfg), scene) if scene is not None else None  # for the first run
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, label="flipviz", verbose=False)
         self._set_initial_camera(np.zeros(3), 4.0)
@@ -191,7 +195,7 @@ class App(Observer):
         with tabs.add_tab("Compare", viser.Icon.LAYOUT_COLUMNS):
             self.compare = ComparePanel(
                 self.server, self, lambda: train_config(self.cfg), self._run_dir, self._scene, self._run_folders,
-                on_change=lambda: self.views.request_all(),
+                self.browse_roots, on_change=lambda: self.views.request_all(),
             )  # fmt: skip
         with tabs.add_tab("Show", viser.Icon.EYE):
             gui.add_markdown("**Colours**\n\n" + "\n".join(f"- {sq} {what}" for sq, what in palette.LEGEND))
@@ -243,10 +247,16 @@ class App(Observer):
 
     def _run_folders(self) -> list[Path]:
         """Finished runs the Compare tab offers: under runs/, beside this app's run folders, and in them."""
-        roots = {Path("runs")} | {d.parent for d in self.run_dirs}
+        return finished_runs(self.browse_roots())
+
+    def browse_roots(self) -> list[Path]:
+        """The folders a browser may name (AppConfig.browse_root): all were given on the command line."""
+        roots = {Path("runs"), *(d.parent for d in self.run_dirs), *self._first.browse_root}
         if self._base_out is not None:
             roots.add(Path(self._base_out).parent)
-        return finished_runs(sorted(roots))
+        if self._first.data is not None:
+            roots.add(Path(self._first.data))
+        return sorted(roots)
 
     def _bake(self) -> dict | None:
         trainer = self.trainer
@@ -325,7 +335,11 @@ class App(Observer):
 
     def restart_with(self, choice: RunChoice) -> None:
         """Restart with the Train tab's choice of scene (or data folder), method, configuration, steps."""
-        data = Path(choice.data).expanduser() if choice.data else None
+        try:
+            data = inside_roots(choice.data, self.browse_roots(), "data folder") if choice.data else None
+        except UserError as e:  # a folder the command line did not name: refused, the run goes on
+            self.train.say(f"**Not restarted:** {e}")
+            return
         scene = choice.scene if choice.scene is not None else self.cfg.scene
         self.restart(replace(self.cfg, scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps))
 

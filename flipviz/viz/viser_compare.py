@@ -29,6 +29,8 @@ import viser
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import SceneData
 from flipviz.data.images import to_uint8
+from flipviz.errors import UserError
+from flipviz.files import inside_roots
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import METHOD_LABELS, METHODS, TrainConfig
 from flipviz.training.evaluate import image_psnr
@@ -36,12 +38,15 @@ from flipviz.viz import palette
 from flipviz.viz.camera_path import KEYFRAMES_FILE, write_keyframes
 from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import camera_from_viser, error_map, to_viser_pose
+from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
 
 log = logging.getLogger("flipviz.app")
 
 MODES = ("off", "split", "side by side", "difference")
 NONE = "(choose a run)"
 NO_B = "_No run B yet._"  # the tab's line until a run B is loaded or trained
+MAX_FRAMES = 2000  # frames of a camera-path video
+MAX_KEYFRAMES = 100
 
 
 def split_image(a: np.ndarray, b: np.ndarray, divider: float) -> np.ndarray:
@@ -106,11 +111,11 @@ class ComparePanel:
     def __init__(
         self, server: viser.ViserServer, run: RunView, run_config: Callable[[], TrainConfig],
         run_dir: Callable[[], Path | None], scene: Callable[[], SceneData | None], search: Callable[[], list[Path]],
-        on_change: Callable[[], None],
+        roots: Callable[[], list[Path]], on_change: Callable[[], None],
     ) -> None:  # fmt: skip
         gui = server.gui
         self.server, self.run, self.run_config, self.run_dir, self.scene = server, run, run_config, run_dir, scene
-        self.search, self.on_change = search, on_change
+        self.search, self.roots, self.on_change = search, roots, on_change
         self.b: RunB | None = None
         self._note = NO_B  # what the tab says while there is no B (loading, or why it failed)
         self._lock = threading.Lock()
@@ -121,19 +126,19 @@ class ComparePanel:
         with gui.add_folder("Run B"):
             self.runs_dd = gui.add_dropdown("Finished run", (NONE,), hint="Run folders with a checkpoint (runs/, this app's runs)")
             self.refresh_btn = gui.add_button("Find runs", icon=viser.Icon.REFRESH)
-            self.path_txt = gui.add_text("Or a folder", "", hint="Any run folder with checkpoint.pt")
+            self.path_txt = gui.add_text("Or a folder", "", hint="A run folder with checkpoint.pt, under the app's browse roots")
             self.load_btn = gui.add_button("Load run B", icon=viser.Icon.FOLDER_OPEN)
-            self.method_dd = gui.add_dropdown("B method", METHODS, initial_value="bl", hint="Train B with this method")
+            self.method_dd = guard_choice(gui.add_dropdown("B method", METHODS, initial_value="bl", hint="Train B with this method"), METHODS)
             self.train_btn = gui.add_button("Train B next to this run", icon=viser.Icon.PLAYER_PLAY,
                                             hint="Same scene, views and steps; both share the CPU")  # fmt: skip
-        self.mode_dd = gui.add_dropdown("Show", MODES, initial_value="off")
-        self.divider = gui.add_slider("Divider", 0.0, 1.0, 0.01, 0.5, hint="Split: where A ends and B begins")
+        self.mode_dd = guard_choice(gui.add_dropdown("Show", MODES, initial_value="off"), MODES)
+        self.divider = guard_number(gui.add_slider("Divider", 0.0, 1.0, 0.01, 0.5, hint="Split: where A ends and B begins"), 0.0, 1.0)
         self.status_md = gui.add_markdown(NO_B)
         with gui.add_folder("Camera path"):
             self.keys_md = gui.add_markdown("No keyframes. Move your camera and add some.")
             self.add_key_btn = gui.add_button("Add keyframe", icon=viser.Icon.CAMERA_PLUS)
             self.clear_keys_btn = gui.add_button("Clear keyframes", icon=viser.Icon.TRASH)
-            self.frames_num = gui.add_number("Frames", 60, min=2, max=2000, step=1)
+            self.frames_num = guard_number(gui.add_number("Frames", 60, min=2, max=MAX_FRAMES, step=1), 2, MAX_FRAMES)
             self.video_btn = gui.add_button("Render video", icon=viser.Icon.MOVIE, hint="A, and B when loaded; MP4 in A's folder")
             self.video_md = gui.add_markdown("")
         self.keyframes: list[Camera] = []
@@ -160,12 +165,18 @@ class ComparePanel:
         if not chosen:
             self._say("_Choose a finished run or type a folder first._")
             return
-        threading.Thread(target=self.load, args=(Path(chosen).expanduser(),), daemon=True).start()
+        threading.Thread(target=self.load, args=(Path(chosen),), daemon=True).start()
 
     def load(self, folder: Path) -> None:
-        """Open a finished run as B (a few seconds: its scene and model are loaded)."""
+        """Open a finished run as B (a few seconds: its scene and model are loaded). Only a folder under
+        the app's browse roots: a browser never makes the server read anywhere else."""
         from flipviz.training.run import open_run
 
+        try:
+            folder = inside_roots(folder, self.roots(), "run folder")
+        except UserError as e:
+            self._say(f"**Cannot load run B:** {e}")
+            return
         self._say(f"_Loading `{folder}`..._")
         try:
             trainer = open_run(folder)
@@ -261,8 +272,8 @@ class ComparePanel:
         if mode == "difference":
             img = error_map(out_a["rgb"], out_b["rgb"])
             return label(img, "|A - B|"), (*palette.ERROR_RANGE, "|A - B|, mean over RGB")
-        img = split_image(to_uint8(out_a["rgb"]), to_uint8(out_b["rgb"]), float(self.divider.value))
-        x = int(round(float(self.divider.value) * img.shape[1]))  # the names on either side of the divider
+        img = split_image(to_uint8(out_a["rgb"]), to_uint8(out_b["rgb"]), float(bounded(self.divider.value, 0.0, 1.0, 0.5)))
+        x = int(round(bounded(self.divider.value, 0.0, 1.0, 0.5) * img.shape[1]))  # the names on either side of the divider
         return label(label(img, a_name, x - 4, align_right=True), b_name, x + 4), None
 
     def _score(self, snapped, b: RunB) -> None:
@@ -288,6 +299,9 @@ class ComparePanel:
 
     def add_keyframe(self, cam: Camera) -> None:
         i = len(self.keyframes)
+        if i >= MAX_KEYFRAMES:
+            self.keys_md.content = f"_At most {MAX_KEYFRAMES} keyframes: clear them to start another path._"
+            return
         self.keyframes.append(cam.with_pose(cam.c2w, name=f"key_{i:03d}"))
         wxyz, pos = to_viser_pose(cam.c2w)
         self._key_handles.append(self.server.scene.add_camera_frustum(
@@ -318,7 +332,7 @@ class ComparePanel:
 
         try:
             write_keyframes(folder / KEYFRAMES_FILE, keys)
-            cams = [c.resized(res) for c in keyframe_path(setup, keys, int(self.frames_num.value))]
+            cams = [c.resized(res) for c in keyframe_path(setup, keys, int(bounded(self.frames_num.value, 2, MAX_FRAMES, 60)))]
             renders = [(f"A: {METHOD_LABELS[setup.method]}", lambda c: self.run.render(c))]
             if self.b is not None:
                 b = self.b

@@ -35,6 +35,7 @@ from flipviz.viz.viser_common import (
     thumbnail,
     to_viser_pose,
 )
+from flipviz.viz.viser_guard import guard_choice, guard_number, guard_vector
 from flipviz.viz.viser_render import RenderWorker
 from flipviz.viz.viser_scene import RunScene, plane_quad
 
@@ -52,6 +53,7 @@ current model (🟥 contradicts, 🟩 agrees); set *Mirrored frustums show* to *
 where; then restart training with the new plane."""
 
 FRUSTUM_IMAGES = ("flipped image", "disagreement", "beta^2")
+PLANE_LIMIT = 1e3  # a typed plane point or normal component (scene units)
 ESTIMATE_HELP = (
     "_No estimate yet. **Estimate plane** finds the mirror plane from the input views alone (a short B/L fit, "
     "then the reflection that maps what the inputs saw onto itself), with a confidence._"
@@ -93,15 +95,15 @@ class MirrorLesson:
         self.show_preview = gui.add_checkbox("Show plane preview", True)
         self.show_plane = gui.add_checkbox("Show mirror plane", True, hint="The translucent square of the plane")
         with gui.add_folder("Type the plane"):
-            self.azimuth = gui.add_slider("Vertical plane azimuth", -180.0, 180.0, 1.0, 0.0,
-                                          hint="Normal (cos a, sin a, 0), through the sphere centre")  # fmt: skip
-            self.point_in = gui.add_vector3("Plane point", (0.0, 0.0, 0.0), step=0.01)
-            self.normal_in = gui.add_vector3("Plane normal", (1.0, 0.0, 0.0), step=0.01)
+            self.azimuth = guard_number(gui.add_slider("Vertical plane azimuth", -180.0, 180.0, 1.0, 0.0,
+                                          hint="Normal (cos a, sin a, 0), through the sphere centre"), -180.0, 180.0)  # fmt: skip
+            self.point_in = guard_vector(gui.add_vector3("Plane point", (0.0, 0.0, 0.0), step=0.01), PLANE_LIMIT)
+            self.normal_in = guard_vector(gui.add_vector3("Plane normal", (1.0, 0.0, 0.0), step=0.01), PLANE_LIMIT)
             self.apply_btn = gui.add_button("Apply typed plane", icon=viser.Icon.CHECK)
-        self.frustum_shows = gui.add_dropdown(
+        self.frustum_shows = guard_choice(gui.add_dropdown(
             "Mirrored frustums show", FRUSTUM_IMAGES, initial_value=FRUSTUM_IMAGES[0],
             hint="disagreement: |flipped image - the model seen from the mirrored camera|",
-        )  # fmt: skip
+        ), FRUSTUM_IMAGES)  # fmt: skip
         self.score_btn = gui.add_button("Score mirrors", icon=viser.Icon.RULER, hint="Render each mirrored view now")
         self.reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         self.restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")

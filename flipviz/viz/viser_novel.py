@@ -14,9 +14,11 @@ from flipviz.training.evaluate import image_psnr, structure_scores
 from flipviz.viz import palette
 from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, error_map, to_viser_pose, upscale, visualize_output
+from flipviz.viz.viser_guard import guard_choice
 from flipviz.viz.viser_render import RenderWorker
 
 BLANK = np.full((48, 48, 3), 235, np.uint8)  # placeholder until the first render
+MAX_NOVEL = 16  # novel cameras at once (shared by all clients)
 
 
 class NovelCameras:
@@ -31,7 +33,7 @@ class NovelCameras:
         gui = server.gui
         self.add_btn = gui.add_button("Add novel camera", icon=viser.Icon.CAMERA_PLUS, hint="At your current view")
         self.select = gui.add_dropdown("Novel camera", ("(none)",))
-        self.output = gui.add_dropdown("Novel output", OUTPUTS, initial_value="RGB")
+        self.output = guard_choice(gui.add_dropdown("Novel output", OUTPUTS, initial_value="RGB"), OUTPUTS)
         self.render_btn = gui.add_button("Render novel view", icon=viser.Icon.PHOTO)
         self.delete_btn = gui.add_button("Delete camera", icon=viser.Icon.TRASH, hint="Remove the selected camera")
         self.image = gui.add_image(BLANK, label="Novel render", format="jpeg")
@@ -45,6 +47,9 @@ class NovelCameras:
         """Add a novel camera at `client`'s current view (or looking at the sphere centre)."""
         setup = self.run.setup
         with self._lock:
+            if len(self.gizmos) >= MAX_NOVEL:  # each is rendered on request: a client cannot pile them up
+                self.status.content = f"_At most {MAX_NOVEL} novel cameras: delete one first._"
+                return ""
             self._count += 1
             name = f"cam{self._count}"
             if client is not None:

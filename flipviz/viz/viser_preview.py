@@ -19,6 +19,7 @@ import viser
 
 from flipviz.data.images import to_uint8
 from flipviz.viz import palette
+from flipviz.viz.viser_guard import guard_choice
 from flipviz.viz.viser_render import BACKGROUND, RenderWorker
 
 COLOURS = ("RGB", "opacity", "beta^2")
@@ -39,7 +40,7 @@ class LivePreview:
         self._lock = threading.Lock()
         gui = server.gui
         self.enabled = gui.add_checkbox("Live 3D preview", True, hint="The field as points, drawn by your browser")
-        self.colour = gui.add_dropdown("Preview colour", COLOURS, initial_value="RGB")
+        self.colour = guard_choice(gui.add_dropdown("Preview colour", COLOURS, initial_value="RGB"), COLOURS)
         self.colorbar = gui.add_image(np.full((46, 320, 3), 255, np.uint8), label="Preview scale", format="png")
         self.colorbar.visible = False
         self.status = gui.add_markdown("_The first bake comes with the first steps._")

@@ -41,6 +41,7 @@ from flipviz.viz.viser_common import (
     resize_nearest,
     visualize_output,
 )
+from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
 
 
 BACKGROUND = 2  # priority of periodic work nobody waits for (preview bakes, refreshes of a still view)
@@ -138,6 +139,7 @@ class RenderWorker:
         self._thread.join(timeout=10.0)
 
 
+MIN_WIDTH, MAX_WIDTH = 128, 1920  # "Max resolution": the finest pass of a view (bounded on the server)
 MIN_ASPECT, MAX_ASPECT = 0.25, 4.0  # a canvas outside these is rendered at the nearest bound
 FAR_DEPTH = 100.0  # depth given to background pixels, behind every scene element
 
@@ -208,13 +210,13 @@ class ViewportRenderer:
             g = client.gui
             view.gui = {
                 "enabled": g.add_checkbox("Render my view", True, hint="Background: the model seen from your camera"),
-                "output": g.add_dropdown("My view shows", OUTPUTS, initial_value="RGB"),
-                "max_width": g.add_slider("Max resolution", 128, 1920, 64, view.max_width,
-                                          hint="Width in pixels of the finest pass of your view"),
+                "output": guard_choice(g.add_dropdown("My view shows", OUTPUTS, initial_value="RGB"), OUTPUTS),
+                "max_width": guard_number(g.add_slider("Max resolution", MIN_WIDTH, MAX_WIDTH, 64, view.max_width,
+                                          hint="Width in pixels of the finest pass of your view"), MIN_WIDTH, MAX_WIDTH),
                 "per_frame": g.add_checkbox("beta^2 per frame", False, hint="Colour beta^2 on this frame's range"),
                 "colorbar": g.add_image(np.full((46, 320, 3), 255, np.uint8), label="Colour scale", format="png"),
-                "snap_layer": g.add_dropdown("Snapped view shows", SNAP_LAYERS, initial_value="blend"),
-                "blend": g.add_slider("Ground truth <-> render", 0.0, 1.0, 0.05, 1.0),
+                "snap_layer": guard_choice(g.add_dropdown("Snapped view shows", SNAP_LAYERS, initial_value="blend"), SNAP_LAYERS),
+                "blend": guard_number(g.add_slider("Ground truth <-> render", 0.0, 1.0, 0.05, 1.0), 0.0, 1.0),
             }  # fmt: skip
         view.gui["colorbar"].visible = False
         with self._lock:  # rendered from now on (its GUI exists)
@@ -294,7 +296,7 @@ class ViewportRenderer:
     # ---- rendering --------------------------------------------------------------------------
     def passes(self, view: ClientView, canvas_w: int) -> list[int]:
         """Widths of the progressive passes: a quarter, then the target (canvas width up to max)."""
-        target = max(64, min(int(canvas_w), int(view.max_width)))
+        target = max(64, min(int(canvas_w), int(bounded(view.max_width, MIN_WIDTH, MAX_WIDTH, MIN_WIDTH))))
         return [target // 4, target] if target >= 256 else [target]
 
     def _camera(self, view: ClientView, pass_idx: int) -> tuple[Camera, int] | None:

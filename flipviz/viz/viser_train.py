@@ -12,8 +12,11 @@ import viser
 from flipviz.data.scenes import SCENES
 from flipviz.training.config import METHODS
 from flipviz.training.events import SetupEvent, StepEvent, split_label
+from flipviz.viz.viser_guard import guard_choice, guard_number
 
 DATA_FOLDER = "(a data folder)"
+CONFIGS = tuple(str(i) for i in range(1, 9))
+MAX_STEPS = 10_000_000  # TrainConfig.validate's bound
 
 
 @dataclass
@@ -48,12 +51,13 @@ class TrainPanel:
         self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
         self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
         with gui.add_folder("Restart", expand_by_default=True):
-            self.scene_dd = gui.add_dropdown("Scene", (*SCENES, DATA_FOLDER), hint="A built-in object, or your own folder")
-            self.data_txt = gui.add_text("Data folder", "", hint="A Blender-format folder (transforms_test.json)")
-            self.method_dd = gui.add_dropdown("Method", METHODS)
-            self.config_dd = gui.add_dropdown("Configuration", tuple(str(i) for i in range(1, 9)))
-            self.steps_num = gui.add_number("Steps", 600, min=1, step=1)
+            self.scene_dd = guard_choice(gui.add_dropdown("Scene", (*SCENES, DATA_FOLDER), hint="A built-in object, or your own folder"), (*SCENES, DATA_FOLDER))
+            self.data_txt = gui.add_text("Data folder", "", hint="A scene folder under the app's browse roots (--data, --browse-root)")
+            self.method_dd = guard_choice(gui.add_dropdown("Method", METHODS), METHODS)
+            self.config_dd = guard_choice(gui.add_dropdown("Configuration", CONFIGS), CONFIGS)
+            self.steps_num = guard_number(gui.add_number("Steps", 600, min=1, max=MAX_STEPS, step=1), 1, MAX_STEPS)
             self.restart_btn = gui.add_button("Restart training", icon=viser.Icon.REFRESH)
+            self.restart_md = gui.add_markdown("")
         self.pause_btn.on_click(lambda _: on_pause())
         self.resume_btn.on_click(lambda _: on_resume())
         self.restart_btn.on_click(lambda _: on_restart(self.choice()))
@@ -68,11 +72,16 @@ class TrainPanel:
         scene = None if data is not None else self.scene_dd.value
         return RunChoice(scene, data, self.method_dd.value, int(self.config_dd.value), int(self.steps_num.value))
 
+    def say(self, text: str) -> None:
+        """One line under the Restart button (why a restart was refused); cleared by the next run."""
+        self.restart_md.content = text
+
     def show_run(self, scene: str, data: str | None, method: str, config: int, steps: int) -> None:
         """Put the form on the run that trains now."""
         self.scene_dd.value = DATA_FOLDER if data else scene
         self.data_txt.value = data or ""
         self.method_dd.value, self.config_dd.value, self.steps_num.value = method, str(config), int(steps)
+        self.restart_md.content = ""
         self._show_data_field()
 
     def set_controls(self, status: str) -> None:
