@@ -10,7 +10,9 @@
    run (B) from an unobserved test view, both scored;
 4. app_capture.png: a robot's drive-by capture of the turned chair (`export-scene --trajectory
    driveby`) trained with `--mirror-plane auto`: the Mirror tab's estimated plane, its confidence
-   and the score-against-azimuth chart.
+   and the score-against-azimuth chart;
+6. app_plane.png: the chair trained from a mirror plane turned 10 degrees (the plane demo): the
+   Mirror tab while training pulls the plane back, its trail and its error.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from pathlib import Path
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
 from browser import chromium, wait_until  # noqa: E402
 from test_browser import button, checkbox, choose, tab  # noqa: E402
 
@@ -36,8 +38,9 @@ class Args:
     out: Path = ROOT / "assets"
     steps_before: int = 700
     """Training steps before the first screenshot."""
-    shots: str = "orbit,capture,compare"
-    """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png; compare: app_compare.png."""
+    shots: str = "orbit,capture,compare,plane"
+    """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png; compare: app_compare.png;
+    plane: app_plane.png."""
 
 
 def main(args: Args) -> None:
@@ -48,6 +51,8 @@ def main(args: Args) -> None:
         capture_shot(args)
     if "compare" in args.shots:
         compare_shot(args)
+    if "plane" in args.shots:
+        plane_shot(args)
     print(f"screenshots in {args.out}")
 
 
@@ -115,6 +120,28 @@ def compare_shot(args: Args) -> None:
             wait_until(lambda: app.compare.b is not None and app.compare.scores, 120, what="run B and its scores")
             time.sleep(20.0)  # the finest pass renders A and B
             d.save_screenshot(str(args.out / "app_compare.png"))
+    finally:
+        app.stop()
+
+
+def plane_shot(args: Args) -> None:
+    from plane_demo import turned_plane_arg
+
+    from flipviz.data.scenes import SCENES
+
+    plane = turned_plane_arg(SCENES["chair"].symmetry_plane, 10.0, 0.0)
+    cfg = AppConfig(scene="chair", mirror_plane=plane, no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run",
+                    images_every=100, steps=600)  # fmt: skip
+    app = App(cfg).start()
+    try:
+        wait_until(lambda: app.step >= 350, 600, what="training")
+        with chromium() as d:
+            open_page(d, app.port, settle_s=5.0)
+            tab(d, "Mirror")
+            checkbox(d, "Show plane preview", False)
+            wait_until(lambda: "Refined plane" in app.mirror.refine_text.content, 60, what="the refined plane")
+            time.sleep(4.0)
+            d.save_screenshot(str(args.out / "app_plane.png"))
     finally:
         app.stop()
 

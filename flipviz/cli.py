@@ -73,7 +73,15 @@ def _run_train(cfg: TrainConfig) -> int:
                 print(f"[flipviz] the object: silhouette IoU {metrics['iou']:.3f}, PSNR inside it {metrics['psnr_object']:.2f} dB{depth}")
         elif metrics.get("message"):
             print(f"[flipviz] {metrics['status']}: {metrics['message']}")
-        if metrics.get("plane", {}).get("trained") is False:
+        plane = metrics.get("plane", {})
+        if "refined" in plane:
+            err = ""
+            if "refined_error_deg" in plane:  # the scene's true plane is known
+                err = (f"; off the true plane {plane['error_deg']:.2f}° / {plane['error_offset']:.3f} before, "
+                       f"{plane['refined_error_deg']:.2f}° / {plane['refined_error_offset']:.3f} after")  # fmt: skip
+            print(f"[flipviz] mirror plane refined during training: turned {plane['refined_change_deg']:.2f}°, "
+                  f"moved {plane['refined_change_offset']:.3f}{err}")  # fmt: skip
+        if plane.get("trained") is False:
             print(f"[flipviz] trained without mirrored views: the estimated plane's confidence is "
                   f"{metrics['plane']['confidence']:.2f} (--unconfident-plane use keeps them)")  # fmt: skip
         if rerun is not None and rerun.opts.path is not None:

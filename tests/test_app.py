@@ -419,6 +419,31 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
         a.stop()
 
 
+def test_the_mirror_tab_follows_the_plane_training_refines(app):
+    """--refine-plane: the plane quad moves with training, its normal's trail is drawn, the text gives its error.
+    (Before the restart test: after it, the app trains B/L, which has no plane to refine.)"""
+    from flipviz.viz.viser_common import plane_wxyz
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            trail = await c.wait_for(lambda m: m.get("name") == "/plane_trail", timeout=40)
+            assert trail["type"] == "LineSegmentsMessage"
+
+    run(go())
+    t = time.monotonic()
+    while len(app.mirror.trail) < 3:
+        assert time.monotonic() - t < 60, len(app.mirror.trail)
+        time.sleep(0.1)
+    text = app.mirror.refine_text.content
+    assert "Refined plane" in text and "off the true plane" in text, text
+    plane = app.mirror.train_plane  # the plane training uses now, which the quad shows
+    assert np.allclose(app.mirror.quad.position, plane.point) and np.allclose(
+        np.abs(app.mirror.quad.wxyz), np.abs(plane_wxyz(plane)), atol=1e-6
+    )
+    assert app.mirror.train_plane is not app.mirror.start_plane
+
+
 def test_restart_with_another_method(app):
     async def go():
         async with ViserTestClient(url(app)) as c:

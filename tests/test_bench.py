@@ -291,18 +291,20 @@ def test_table_shows_paper_numbers_for_nerf_synthetic_scenes() -> None:
 
 def test_per_config_table_reports_the_flip_runs_coverage_and_plane() -> None:
     """With auto, B/L's would-be mirrors use another plane: the coverage shown is Flip+U's, beside
-    its plane's confidence and whether its mirrors were dropped."""
+    its plane's confidence, whether its mirrors were dropped, and its error before -> after training."""
     from flipviz.bench.tables import per_config_table
 
     def row(method: str, config: int, psnr: float, angle: float, plane: dict | None) -> dict:
         m = {"coverage": {"mean_angle_deg": angle, "within_30": 1.0 if angle < 30 else 0.0}} | ({"plane": plane} if plane else {})
         return {"scene": "mug", "method": method, "config": config, "default_flags": True, "status": "ok", "psnr": psnr, "metrics": m}
 
+    refined = {"confidence": 0.3, "trained": True, "error_deg": 1.25, "error_offset": 0.04, "refined_error_deg": 0.1,
+               "refined_error_offset": 0.002}  # fmt: skip
     rows = [row("bl", 1, 20.0, 1.0, None), row("flip+u", 1, 20.0, 45.0, {"confidence": 0.1, "trained": False}),
-            row("bl", 2, 20.0, 1.0, None), row("flip+u", 2, 21.5, 2.0, {"confidence": 0.3, "trained": True})]  # fmt: skip
+            row("bl", 2, 20.0, 1.0, None), row("flip+u", 2, 21.5, 2.0, refined)]  # fmt: skip
     lines = per_config_table(rows, ["bl", "flip+u"]).splitlines()
-    assert lines[2].endswith("| +0.00 | - | 45.0 | 0% | 0.100 (dropped) |"), lines[2]
-    assert lines[3].endswith("| +1.50 | - | 2.0 | 100% | 0.300 |"), lines[3]
+    assert lines[2].endswith("| +0.00 | - | 45.0 | 0% | 0.100 (dropped) | - |"), lines[2]
+    assert lines[3].endswith("| +1.50 | - | 2.0 | 100% | 0.300 | 1.25° / 0.040 -> 0.10° / 0.002 |"), lines[3]
 
 
 def test_paper_numbers_match_protocol_and_tex() -> None:

@@ -109,11 +109,11 @@ def test_an_unconfident_plane_is_dropped_unless_the_user_keeps_it(tmp_path, turn
     cfg = TrainConfig(scene="chair-turned", method="flip+u", res=100, steps=10, out=tmp_path / "run")
     dropped, kept = (build_run(replace(cfg, unconfident_plane=u), turned_chair, saved) for u in ("drop", "use"))
     bl = build_run(replace(cfg, method="bl"), turned_chair)
-    assert kept.training.mirror_ids and kept.refiner is not None and kept.spec.uncertain_mirrors
+    assert kept.training.mirror_ids and kept.flip.refiner is not None and kept.spec.uncertain_mirrors
     if confidence >= CONFIDENT:
         assert dropped.training.mirror_ids == kept.training.mirror_ids
         return
     assert dropped.estimate is not None and not dropped.estimate.confident
-    assert not dropped.training.mirror_ids and dropped.refiner is None and not dropped.spec.uses_beta
+    assert not dropped.training.mirror_ids and dropped.flip.refiner is None and not dropped.spec.uses_beta
     assert len(dropped.training.views) == len(bl.training.views) == 8
     assert np.array_equal(dropped.training.init_c2w.numpy(), bl.training.init_c2w.numpy())

@@ -181,7 +181,7 @@ def test_a_run_whose_model_is_not_finite_never_reports_success(tmp_path):
         def on_step(self, e):
             if e.step == 2:
                 with torch.no_grad():
-                    tr.refiner.xi.fill_(float("nan"))
+                    tr.flip.refiner.xi.fill_(float("nan"))
 
         on_setup = on_images = on_end = lambda self, e: None
 

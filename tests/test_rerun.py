@@ -137,6 +137,21 @@ def test_mirrored_cameras_and_steps(run):
     assert "/curves/mirror/rot_err_deg" in rrd and "/curves/test/test_psnr" in rrd
 
 
+def test_the_refined_plane_moves_in_the_recording(run):
+    """--refine-plane (the default): the mirror plane is logged at step 0 and at every StepEvent, where the
+    event has it, with its error against the true plane as curves."""
+    rrd, keep = run["rrd"], run["keep"]
+    logged = [e.step for e in keep.steps]
+    normals = rows_by_step(rrd["/world/mirror_plane/normal"], "Arrows3D:vectors")
+    assert sorted(normals) == [0, *logged]
+    last = keep.steps[-1]
+    assert last.plane is not None and last.plane_err_deg is not None
+    v = np.asarray(normals[last.step][0])
+    assert v / np.linalg.norm(v) == pytest.approx(last.plane.normal, abs=1e-5)
+    assert rows_by_step(rrd["/curves/plane/err_deg"], "Scalars:scalars")[last.step] == pytest.approx([last.plane_err_deg])
+    assert sorted(rows_by_step(rrd["/curves/plane/err_offset"], "Scalars:scalars")) == logged
+
+
 def test_beta2_frames_equal_the_model_maps(run):
     rrd, keep = run["rrd"], run["keep"]
     assert [e.step for e in keep.images] == [IMAGES_EVERY, STEPS]  # periodic, then the final render

@@ -51,6 +51,8 @@ class BenchConfig:
     authors' code) | opposite | scene | 'px,py,pz;nx,ny,nz'."""
     mirror_pose: Literal["reflect", "lookat"] = TrainConfig.mirror_pose
     """Initial mirrored poses: reflect (each camera reflected through the plane) | lookat (the paper's)."""
+    refine_plane: bool = TrainConfig.refine_plane
+    """Flip runs refine the mirror plane during training (TrainConfig.refine_plane)."""
     seed: int = TrainConfig.seed
     """Seed of every run (each run is independent and seeded)."""
     device: str = TrainConfig.device

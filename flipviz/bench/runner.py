@@ -32,7 +32,9 @@ from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
 
 # BenchConfig fields that are TrainConfig settings, passed to every run as they are.
-RUN_SETTINGS = ("res", "steps", "batch_rays", "field", "n_samples", "grid_res", "mirror_plane", "mirror_pose", "seed", "device")
+RUN_SETTINGS = (
+    "res", "steps", "batch_rays", "field", "n_samples", "grid_res", "mirror_plane", "mirror_pose", "refine_plane", "seed", "device",
+)  # fmt: skip
 # TrainConfig fields that change where a run writes or what it logs, not what it computes.
 NOT_IN_KEY = (
     "out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop",

@@ -15,10 +15,15 @@ from flipviz.files import write_json, write_text
 
 CSV_FIELDS = (
     "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "iou", "psnr_object", "depth_abs",
-    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "reused_from", "train_seconds",
+    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "plane_error_deg", "plane_error_offset",
+    "refined_error_deg", "refined_error_offset", "reused_from", "train_seconds",
     "wall_seconds", "steps", "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
     "flipviz_version", "torch_version", "numpy_version",
 )  # fmt: skip
+PLANE_KEYS = {  # results.csv column: the key in metrics.json's "plane" (Trainer.report)
+    "plane_confidence": "confidence", "mirrors_trained": "trained", "plane_error_deg": "error_deg",
+    "plane_error_offset": "error_offset", "refined_error_deg": "refined_error_deg", "refined_error_offset": "refined_error_offset",
+}  # fmt: skip
 METRICS = ("psnr", "ssim", "lpips")
 STRUCTURE = ("iou", "psnr_object", "depth_abs")  # training/evaluate.py: what the object itself scores
 DIGITS = {"psnr": 2, "ssim": 3, "lpips": 3, "iou": 3, "psnr_object": 2, "depth_abs": 3}
@@ -33,9 +38,8 @@ def metric(r: dict, key: str):
     if key in ("mirror_angle_deg", "within_30"):
         cov = m.get("coverage") or {}
         return cov.get("mean_angle_deg" if key == "mirror_angle_deg" else key)
-    if key in ("plane_confidence", "mirrors_trained"):  # Flip runs: the auto plane's confidence, and its use
-        plane = m.get("plane") or {}
-        return plane.get("confidence" if key == "plane_confidence" else "trained")
+    if key in PLANE_KEYS:  # Flip runs: the auto plane's confidence and use; its error before and after training
+        return (m.get("plane") or {}).get(PLANE_KEYS[key])
     return m.get(key)
 
 
@@ -163,7 +167,7 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
     head = ["Scene", "Config"] + [METHOD_LABELS[m] for m in methods]
     if both:
         head += ["gain Flip+U - B/L", "gain in the object", "angle to nearest mirror (deg)", "tests within 30 deg",
-                 "plane confidence (Flip+U)"]  # fmt: skip
+                 "plane confidence (Flip+U)", "plane error before -> after training (Flip+U)"]  # fmt: skip
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for scene in scenes(rows):
         for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
@@ -176,7 +180,8 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
                 cov = coverage_run(rows, scene, n)
                 cells += [f"{g:+.2f}" if g is not None else "-", f"{go:+.2f}" if go is not None else "-"]
                 cells += [f"{metric(cov, 'mirror_angle_deg'):.1f}", f"{metric(cov, 'within_30'):.0%}"] if cov else ["-", "-"]
-                cells.append(plane_cell(next((r for r in main_rows(rows, scene, "flip+u") if r["config"] == n), None)))
+                fu = next((r for r in main_rows(rows, scene, "flip+u") if r["config"] == n), None)
+                cells += [plane_cell(fu), plane_error_cell(fu)]
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -194,6 +199,17 @@ def plane_cell(r: dict | None) -> str:
     if conf is None:
         return "-"
     return f"{conf:.3f}" + (" (dropped)" if metric(r, "mirrors_trained") is False else "")  # 3 digits: 0.248 is below 0.25
+
+
+def plane_error_cell(r: dict | None) -> str:
+    """A Flip+U run's plane error against the scene's true plane, where it started -> where training left it."""
+    deg, off = (metric(r, "plane_error_deg"), metric(r, "plane_error_offset")) if r else (None, None)
+    if deg is None:
+        return "-"
+    before = f"{deg:.2f}° / {off:.3f}"
+    if metric(r, "refined_error_deg") is None:
+        return before + " (not refined)"
+    return f"{before} -> {metric(r, 'refined_error_deg'):.2f}° / {metric(r, 'refined_error_offset'):.3f}"
 
 
 def time_table(rows: list[dict], methods: list[str]) -> str:

@@ -50,7 +50,7 @@ def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") 
     try:
         state = torch.load(p, map_location=map_location, weights_only=True)  # never runs code from the file
     except pickle.UnpicklingError as e:
-        if "weights only" in str(e).lower():  # the file names a Python object (a function, a class) to build
+        if "GLOBAL" in str(e):  # the file names a Python object (a function, a class) to build
             raise UserError(f"cannot open {p}: it holds Python objects beyond tensors and plain data, and flipviz "
                             "never loads those (loading could run code); it was not written by flipviz") from None  # fmt: skip
         raise UserError(f"cannot open {p}: not a readable checkpoint (UnpicklingError)") from None

@@ -68,6 +68,9 @@ class StepEvent:
     mirror_trans_change: np.ndarray | None = None  # (M,)
     mirror_rot_err_deg: np.ndarray | None = None  # (M,) vs the exact reflected pose, when known
     mirror_trans_err: np.ndarray | None = None  # (M,)
+    plane: Plane | None = None  # the mirror plane now, when training refines it (--refine-plane)
+    plane_err_deg: float | None = None  # its angle to the scene's true plane, when known
+    plane_err_offset: float | None = None  # and its offset from it (scene units)
 
 
 @dataclass

@@ -1,40 +1,53 @@
-"""What Just Flip adds to a NeRF training step (paper Sec. IV), in one place.
+"""What Just Flip changes in a NeRF (paper Sec. IV), read top to bottom in the paper's order.
 
-A plain NeRF step (`Trainer._train_step`): draw random pixels of the training views, cast their
-rays from the views' poses, render them, and minimise the squared error plus the field's
-regulariser. Just Flip changes three things, one function each:
+A plain NeRF step (`Trainer._train_step`) draws random pixels of the training views, casts their
+rays from the views' poses, renders them and minimises the squared error plus the field's
+regulariser. `Flip` is what Just Flip puts around that step, the way gsplat's strategies sit
+around its step: the trainer takes the poses of a step from `Flip.poses()`, its loss from
+`Flip.loss()`, and lets `Flip.step()` move what Just Flip adds. A run without mirrors (B/L,
+Upper, or a Flip run whose estimated plane was dropped) gets the same object with nothing to
+move: fixed poses and, after the warm-up, the NLL on its uncertain rays (B/L+U) or the MSE.
 
-1. `mirrored_views`: more training views. Each input image is flipped left-right and posed
-   (geometry/mirror.py) by the paper's rule (`--mirror-pose lookat`: reflect its camera centre
-   through a plane through the centre of the least-squares sphere of the input centres, put it
-   back on the sphere, look at the sphere's centre) or, by default, by reflecting the whole camera
-   through the plane (`reflect`: the same on the paper's ring, exact for any plane and trajectory).
-2. `pose_refiner`: those poses are only estimates, so they become parameters (bundle adjustment,
-   model/pose_refine.py): c2w = c2w_init @ Exp(xi) for the mirrored cameras; inputs stay fixed.
-3. `objective`: a flipped image is a true view only of a symmetric object, so the mirrored rays
-   get a learned variance beta^2 and, after a warm-up, the Gaussian NLL (model/objective.py):
-   mirrored pixels that contradict the real views are down-weighted.
+IV-A  Mirrored views (`mirrored_views`). Each input image is flipped left-right and posed by
+      reflecting its camera through the mirror plane (`--mirror-pose reflect`, the default: exact
+      for an object symmetric about that plane, on any trajectory), or by the paper's rule
+      (`lookat`: reflect the centre, back onto the least-squares sphere of the input centres, look
+      at its centre). The plane is `--mirror-plane` (auto: estimated from the inputs alone,
+      training/plane_estimate.py). geometry/mirror.py computes the poses.
+      flipviz adds: the plane is a parameter of training (`MirrorPlane`, `--refine-plane`). It has
+      3 degrees of freedom, every mirrored camera follows it (c2w(P) = S_P S_P0 c2w_init, a rigid
+      motion), and the photometric loss of the mirrored rays moves it. Per-camera BA can only pull
+      each camera back on its own; an error all the mirrors share (a plane 1 degree off) makes them
+      agree with each other about a ghost, and only the shared parameter can remove it.
+IV-B  Bundle adjustment of the mirrored poses (`pose_refiner`, BARF-style, model/pose_refine.py):
+      c2w_i = S_P S_P0 c2w_i^init Exp(xi_i) for the mirrored cameras; the inputs stay fixed.
+IV-C  Uncertainty (`objective`, model/objective.py): a flipped image is a true view only of a
+      symmetric object, so the mirrored rays get a learned variance beta^2 and, after a warm-up
+      of plain MSE, the Gaussian NLL: mirrored pixels that contradict the real views weigh less.
 
-Which method uses which is `methods.py` (B/L+U uses 3 on the input rays; Upper uses none).
+Which method uses which part is `methods.py` (B/L+U puts IV-C on the input rays; Upper uses none).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import torch
+from torch import Tensor, nn
 
 from flipviz.data.cameras import Camera, View
 from flipviz.data.dataset import Plane, SceneData
 from flipviz.geometry.mirror import MirrorSet, make_mirror_set
 from flipviz.model.objective import Objective
+from flipviz.model.optim import adam, decay_lr
 from flipviz.model.pose_refine import PoseRefiner
 from flipviz.model.renderer import ray_box
 from flipviz.training.config import TrainConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, TrainView
 
 
+# ---------------------------------------------------------------------------------- IV-A: views
 def mirrored_views(cfg: TrainConfig, inputs: list[View], scene: SceneData, estimated: Plane | None = None) -> MirrorSet:
-    """1. The flipped inputs with their initial poses (and the exact ones, when the scene's plane is
+    """The flipped inputs with their initial poses (and the exact ones, when the scene's plane is
     known), for cfg.mirror_plane; for "auto", the `estimated` plane (plane_estimate.py)."""
     plane: str | Plane = cfg.mirror_plane
     if plane == "auto":
@@ -60,13 +73,143 @@ def rays_through_box(camera: Camera, bbox: np.ndarray) -> np.ndarray:
     return ((t_out > t_in) & (t_out > 0)).numpy().reshape(camera.height, camera.width)
 
 
+class MirrorPlane(nn.Module):
+    """The mirror plane as a parameter: n = normalize(n0 + a u + b v), through p0 + s n0.
+
+    (u, v) span the initial plane, so the tilt (a, b) turns the normal by about |(a, b)| radians
+    about the point p0 (the estimate's point nearest the object, or the preset's), and s moves the
+    plane along n0 (scene units). All three start at 0: the initial plane P0.
+    """
+
+    def __init__(self, plane: Plane, device: torch.device | str = "cpu") -> None:
+        super().__init__()
+        f32 = dict(dtype=torch.float32, device=device)
+        basis = torch.as_tensor(plane.basis(), **f32)  # columns u, v, n0
+        self.register_buffer("u", basis[:, 0].contiguous())
+        self.register_buffer("v", basis[:, 1].contiguous())
+        self.register_buffer("n0", basis[:, 2].contiguous())
+        self.register_buffer("p0", torch.as_tensor(plane.point, **f32))
+        self.tilt = nn.Parameter(torch.zeros(2, **f32))
+        self.shift = nn.Parameter(torch.zeros((), **f32))
+        self.register_buffer("S0", self.reflection().detach())  # S_P0
+
+    def normal_offset(self) -> tuple[Tensor, Tensor]:
+        """The plane n . x = d: unit normal (3,) and offset ()."""
+        n = self.n0 + self.tilt[0] * self.u + self.tilt[1] * self.v
+        n = n / n.norm()
+        return n, n @ (self.p0 + self.shift * self.n0)
+
+    def reflection(self) -> Tensor:
+        """S_P (4, 4): x -> x - 2 (n . x - d) n, the reflection through the plane (det -1)."""
+        n, d = self.normal_offset()
+        S = torch.eye(4, dtype=n.dtype, device=n.device)
+        S[:3, :3] = S[:3, :3] - 2.0 * torch.outer(n, n)
+        S[:3, 3] = 2.0 * d * n
+        return S
+
+    def motion(self) -> Tensor:
+        """S_P S_P0 (4, 4): the rigid motion that takes a camera mirrored through P0 to one mirrored
+        through P (the identity at the start). Reflected cameras stay exact reflections; look-at
+        ones follow the plane the same way."""
+        return self.reflection() @ self.S0
+
+    def plane(self) -> Plane:
+        """The current plane, as numpy (its point: the pivot moved along n0, projected onto the plane)."""
+        with torch.no_grad():
+            n, d = self.normal_offset()
+            pivot = self.p0 + self.shift * self.n0
+            p = pivot - (pivot @ n - d) * n
+        return Plane(p.double().cpu().numpy(), n.double().cpu().numpy())
+
+
+# ---------------------------------------------------------------------------------- IV-B: BA
 def pose_refiner(ts: TrainingSet, steps: int, device: torch.device | str) -> PoseRefiner | None:
-    """2. BA of the views whose refine flag is set (the mirrored ones); None when no pose moves."""
+    """BA of the views whose refine flag is set (the mirrored ones); None when no pose moves."""
     if not bool(ts.refine_mask.any()):
         return None
     return PoseRefiner(ts.init_c2w, ts.refine_mask, steps, device=device)
 
 
+# ---------------------------------------------------------------------------------- IV-C: loss
 def objective(cfg: TrainConfig, beta_min: float) -> Objective:
-    """3. MSE for the first `uncertainty_start` of the steps, then the NLL on uncertain rays."""
+    """MSE for the first `uncertainty_start` of the steps, then the NLL on uncertain rays."""
     return Objective(beta_min, cfg.density_weight, nll_start=int(cfg.uncertainty_start * cfg.steps))
+
+
+# ---------------------------------------------------------------------------------- the hooks
+class Flip:
+    """Just Flip around a NeRF step: the poses of a step, its loss, and the parameters it moves
+    (BA's xi and the plane), with their own Adam and schedules. Nothing moves without mirrors."""
+
+    def __init__(
+        self, cfg: TrainConfig, ts: TrainingSet, plane: Plane | None, beta_min: float, device: torch.device | str,
+    ) -> None:  # fmt: skip
+        self.ts, self.steps = ts, cfg.steps
+        self.refiner = pose_refiner(ts, cfg.steps, device)
+        self.objective = objective(cfg, beta_min)
+        self.mirror_ids = torch.as_tensor(ts.mirror_ids, dtype=torch.long, device=device)
+        refine_plane = cfg.refine_plane and plane is not None and bool(ts.mirror_ids)
+        self.plane = MirrorPlane(plane, device) if refine_plane else None
+        self.plane_start = int(cfg.plane_start * cfg.steps)
+        ba_start = cfg.ba_start if cfg.ba_start is not None else (BA_START_WITH_PLANE if self.plane is not None else 0.0)
+        self.ba_start = int(ba_start * cfg.steps)  # a refined plane moves all the mirrors first
+        self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
+        self.opt_plane = None
+        if self.plane is not None:
+            self.opt_plane = adam([{"params": list(self.plane.parameters()), "lr": cfg.plane_lr}], 1e-8, (0.9, 0.999))
+
+    def poses(self) -> Tensor:
+        """(V, 4, 4) the current poses: inputs fixed; mirrors S_P S_P0 c2w_init Exp(xi) (IV-A, IV-B)."""
+        c2w = self.refiner() if self.refiner is not None else self.ts.init_c2w  # c2w_init Exp(xi)
+        if self.plane is None:
+            return c2w
+        moved = self.plane.motion() @ c2w[self.mirror_ids]  # (M, 4, 4): the mirrors follow the plane
+        return c2w.index_copy(0, self.mirror_ids, moved)
+
+    def loss(self, out: dict[str, Tensor], target: Tensor, view: Tensor, step: int) -> Tensor:
+        """IV-C on a batch whose rays come from the views `view` (R,)."""
+        return self.objective(out, target, self.ts.uncertain[view], step)
+
+    def zero_grad(self) -> None:
+        for opt in (self.opt_pose, self.opt_plane):
+            if opt is not None:
+                opt.zero_grad(set_to_none=True)
+
+    def step(self, step: int) -> None:
+        """Move the poses (BA) and, after its warm-up, the plane; `step`: the step just taken (0-based)."""
+        if self.opt_pose is not None and step >= self.ba_start:
+            self.refiner.adjust_lr(self.opt_pose, step)  # type: ignore[union-attr]
+            self.opt_pose.step()
+        if self.opt_plane is not None and step >= self.plane_start:
+            decay_lr(self.opt_plane, step - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)
+            self.opt_plane.step()
+
+    def lrs(self) -> dict[str, float]:
+        return {
+            "lr_pose": float(self.opt_pose.param_groups[0]["lr"]) if self.opt_pose is not None else 0.0,
+            "lr_plane": float(self.opt_plane.param_groups[0]["lr"]) if self.opt_plane is not None else 0.0,
+        }
+
+    def current_plane(self) -> Plane | None:
+        """The refined plane (None when the plane is not refined)."""
+        return self.plane.plane() if self.plane is not None else None
+
+    # -- checkpoints
+    def state_dict(self) -> dict:
+        return {
+            "poses": self.refiner.state_dict() if self.refiner is not None else None,
+            "opt_pose": self.opt_pose.state_dict() if self.opt_pose is not None else None,
+            "plane": self.plane.state_dict() if self.plane is not None else None,
+            "opt_plane": self.opt_plane.state_dict() if self.opt_plane is not None else None,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """What `state_dict` wrote (a checkpoint from before the plane was refined has no plane: it stays P0)."""
+        parts = {"poses": self.refiner, "opt_pose": self.opt_pose, "plane": self.plane, "opt_plane": self.opt_plane}
+        for key, obj in parts.items():
+            if obj is not None and state.get(key) is not None:
+                obj.load_state_dict(state[key])
+
+
+PLANE_LR_DECAY = 0.01  # the plane's lr falls 100x over training, as BA's (1e-3 -> 1e-5)
+BA_START_WITH_PLANE = 0.5  # TrainConfig.ba_start's default when the plane is refined

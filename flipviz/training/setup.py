@@ -7,8 +7,8 @@
     mirrors    = flipped inputs with their initial poses                    (flip.py, step 1)
     training   = the method's views and their ray bank                      (methods.py)
     model      = radiance field + renderer                                  (model/radiance.py)
-    refiner    = BA of the mirrored poses                                   (flip.py, step 2)
-    objective  = MSE, then the NLL on uncertain rays                        (flip.py, step 3)
+    flip       = what Just Flip moves and how it scores a batch             (flip.py: the plane,
+                 BA of the mirrored poses, MSE then the NLL on uncertain rays)
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from flipviz.data.selection import select_split
 from flipviz.errors import UserError
 from flipviz.geometry.mirror import MirrorSet
 from flipviz.geometry.symmetry import PlaneEstimate
-from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, PoseRefiner, RadianceModel
+from flipviz.model import GridConfig, ModelConfig, NerfConfig, RadianceModel
 from flipviz.training import flip
 from flipviz.training.config import PAPER_LR_DECAY, TrainConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
@@ -43,8 +43,7 @@ class RunSetup:
     estimate: PlaneEstimate | None  # --mirror-plane auto (Flip methods)
     training: TrainingSet
     model: RadianceModel
-    refiner: PoseRefiner | None
-    objective: Objective
+    flip: flip.Flip
 
 
 def model_config(cfg: TrainConfig) -> ModelConfig:
@@ -89,5 +88,5 @@ def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = 
     )
     mcfg = model_config(cfg)
     model = RadianceModel(mcfg, scene.bbox, scene.near, scene.far, with_beta=spec.uses_beta, device=device)
-    refiner = flip.pose_refiner(training, cfg.steps, device)
-    return RunSetup(scene, spec, split, mirrors, estimate, training, model, refiner, flip.objective(cfg, mcfg.beta_min))
+    hooks = flip.Flip(cfg, training, mirrors.plane if spec.mirrors else None, mcfg.beta_min, device)
+    return RunSetup(scene, spec, split, mirrors, estimate, training, model, hooks)

@@ -1,16 +1,17 @@
 """The training loop of the five methods, with events, a thread-safe render, pause/resume/stop.
 
-    trainer = Trainer(cfg)              # setup.py: split -> mirrors -> training set -> model, BA, objective
+    trainer = Trainer(cfg)              # setup.py: split -> mirrors -> training set -> model, Flip hooks
     trainer.add_observer(obs)           # events.py: on_setup / on_step / on_images / on_end
     metrics = trainer.run()             # blocking; stop() / pause() / resume() from other threads
 
-One step (`_train_step`), the paper's Sec. IV-B/IV-C:
+One step (`_train_step`), a NeRF step with Just Flip's hooks (flip.py, paper Sec. IV):
     idx      = batch_rays random pixels of the training views        (R,)
-    poses    = current c2w of every view, refined where BA is on      (V, 4, 4)
+    poses    = flip.poses(): every view's c2w; mirrors follow the     (V, 4, 4)
+               refined plane and BA
     o, d     = rays of the pixels from their views' poses             (R, 3) each
     out      = render(o, d): rgb (R, 3), beta2, sigma_mean (R,)
-    loss     = objective(out, target, uncertain, step) + regulariser  (model/objective.py)
-and the field's and the poses' optimisers step together.
+    loss     = flip.loss(out, target, view, step) + regulariser       (model/objective.py)
+and the field's optimiser and Flip's (poses, plane) step together.
 """
 
 from __future__ import annotations
@@ -89,9 +90,8 @@ class Trainer:
         rs = build_run(cfg, self.scene, saved)
         self.spec, self.split, self.mirrors, self.training = rs.spec, rs.split, rs.mirrors, rs.training
         self.plane_estimate = rs.estimate
-        self.model, self.refiner, self.objective = rs.model, rs.refiner, rs.objective
+        self.model, self.flip = rs.model, rs.flip
         self.opt_field = self.model.make_optimizer()
-        self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
         self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
         self._lock_file = None if read_only else FolderLock(self.run_dir)  # the run folder, ours until run() ends
         if self.plane_estimate is not None and not read_only:
@@ -148,7 +148,7 @@ class Trainer:
     # ------------------------------------------------------------------ poses
     def current_poses(self) -> torch.Tensor:
         """(V, 4, 4) current poses of all training views (refined where BA is on)."""
-        return self.refiner() if self.refiner is not None else self.training.init_c2w
+        return self.flip.poses()
 
     def mirror_c2w(self) -> np.ndarray | None:
         """(M, 4, 4) current poses of the mirrored training views; None when the method has none."""
@@ -169,29 +169,25 @@ class Trainer:
         if self.model.update_schedule(self.step, cfg.steps):  # grids upsampled: new parameters
             self.opt_field = self.model.make_optimizer()
         self.model.adjust_lr(self.opt_field, self.step, cfg.steps)
-        if self.refiner is not None:
-            self.refiner.adjust_lr(self.opt_pose, self.step)
         idx = bank.sample(cfg.batch_rays, self._gen)  # (R,)
         view = bank.view[idx]
         o, d = rays_from_c2w(self.current_poses()[view], bank.dirs_cam[idx])  # (R, 3) each
         out = self.model.render_rays(o, d, training=True)
         target = bank.rgb[idx]
-        total = self.objective(out, target, self.training.uncertain[view], self.step) + self.model.regulariser()
+        total = self.flip.loss(out, target, view, self.step) + self.model.regulariser()
         if not torch.isfinite(total):
             raise NonFiniteLoss(f"loss became {float(total.detach())} at step {self.step + 1}")
         self.opt_field.zero_grad(set_to_none=True)
-        if self.opt_pose is not None:
-            self.opt_pose.zero_grad(set_to_none=True)
+        self.flip.zero_grad()
         total.backward()
         self.opt_field.step()
-        if self.opt_pose is not None:
-            self.opt_pose.step()
+        self.flip.step(self.step)
         self.step += 1
         return {
             "loss": float(total.detach()),
             "psnr": psnr(float(((out["rgb"].detach() - target) ** 2).mean())),
             "lr_field": float(self.opt_field.param_groups[0]["lr"]),
-            "lr_pose": float(self.opt_pose.param_groups[0]["lr"]) if self.opt_pose is not None else 0.0,
+            **self.flip.lrs(),
         }
 
     # ------------------------------------------------------------------ the loop
@@ -288,7 +284,7 @@ class Trainer:
             m["plane"] = self._plane_report()
         pose = self._pose_report()
         if pose:
-            m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items()}
+            m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items() if k.startswith("mirror_")}
         return m
 
     def close(self) -> None:
@@ -302,9 +298,8 @@ class Trainer:
             "step": self.step,
             "config": self.cfg.to_dict(),
             "model": self.model.state_dict(),
-            "poses": self.refiner.state_dict() if self.refiner is not None else None,
             "opt_field": self.opt_field.state_dict(),
-            "opt_pose": self.opt_pose.state_dict() if self.opt_pose is not None else None,
+            **self.flip.state_dict(),  # poses, opt_pose, plane, opt_plane
             "train_seconds": self.train_seconds,
             "rng": self._gen.get_state(),
             "torch_rng": torch.get_rng_state(),
@@ -319,7 +314,7 @@ class Trainer:
         path = self.run_dir / ckpt.CHECKPOINT_NAME
         with self._lock:
             state = self.checkpoint_state()
-            if not (ckpt.state_is_finite(state["model"]) and ckpt.state_is_finite(state["poses"] or {})):
+            if not all(ckpt.state_is_finite(state[k] or {}) for k in ("model", "poses", "plane")):
                 log.warning("not saving a non-finite state at step %d; the last good checkpoint is kept", self.step)
                 return None
             try:
@@ -339,11 +334,7 @@ class Trainer:
             self.model.load_state_dict(state["model"])
             self.opt_field = self.model.make_optimizer()
             self.opt_field.load_state_dict(state["opt_field"])
-            if self.refiner is not None and state.get("poses") is not None:
-                self.refiner.load_state_dict(state["poses"])
-                self.opt_pose = self.refiner.make_optimizer()
-                if state.get("opt_pose") is not None:
-                    self.opt_pose.load_state_dict(state["opt_pose"])
+            self.flip.load_state_dict(state)
             step, seconds = state["step"], float(state.get("train_seconds", 0.0))
             if isinstance(step, bool) or not isinstance(step, int) or step < 0:
                 raise ValueError(f"step {step!r} is not a whole number >= 0")
@@ -389,15 +380,28 @@ class Trainer:
         if true is not None:
             deg, offset = plane_error(self.mirrors.plane, true)
             rep.update(error_deg=deg, error_offset=offset)
+        refined = self.flip.current_plane()
+        if refined is not None:  # --refine-plane: "used" is where the plane started, "refined" where it is now
+            rep["refined"] = refined.to_dict()
+            rep["refined_change_deg"], rep["refined_change_offset"] = plane_error(refined, self.mirrors.plane)
+            if true is not None:
+                rep["refined_error_deg"], rep["refined_error_offset"] = plane_error(refined, true)
         return rep
 
     def _pose_report(self) -> dict:
+        """The mirrored poses now (and the plane, when it is refined), with their errors where known."""
         c2w = self.mirror_c2w()
         if c2w is None:
             return {}
+        rep: dict = {}
+        plane, true = self.flip.current_plane(), self.scene.symmetry_plane
+        if plane is not None:
+            rep["plane"] = plane
+            if true is not None:
+                rep["plane_err_deg"], rep["plane_err_offset"] = plane_error(plane, true)
         init = [v.camera.c2w for v in self.training.mirror_views]
         change = np.array([pose_errors(a, b) for a, b in zip(c2w, init)])
-        rep = dict(mirror_c2w=c2w, mirror_rot_change_deg=change[:, 0], mirror_trans_change=change[:, 1])
+        rep.update(mirror_c2w=c2w, mirror_rot_change_deg=change[:, 0], mirror_trans_change=change[:, 1])
         if self.mirrors.true_cameras is not None:
             err = np.array([pose_errors(a, t.c2w) for a, t in zip(c2w, self.mirrors.true_cameras)])
             rep.update(mirror_rot_err_deg=err[:, 0], mirror_trans_err=err[:, 1])

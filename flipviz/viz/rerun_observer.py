@@ -20,6 +20,7 @@ import numpy as np
 import rerun as rr
 
 from flipviz.data.cameras import Camera
+from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
 from flipviz.training.config import TrainConfig
@@ -81,6 +82,7 @@ class RerunObserver(Observer):
         self._sinks_ready = False
         self._closed = False
         self._frustum_scale = 0.3
+        self._plane_size, self._plane_moves = 1.0, False  # set by the SetupEvent
         self._series_colors = [tuple(int(255 * c) for c in rgb[:3]) for rgb in matplotlib.colormaps["tab10"].colors]
 
     # ------------------------------------------------------------------ sinks
@@ -152,19 +154,16 @@ class RerunObserver(Observer):
         rec.log("world/bbox", rr.Boxes3D(mins=[e.bbox[0]], sizes=[e.bbox[1] - e.bbox[0]], colors=[(90, 90, 90)],
                                             fill_mode="majorwireframe", radii=0.003),
                 static=True)
-        # The mirror plane used: a translucent square with its normal; the true plane: an outline.
-        for path, plane, color, filled in (("world/mirror_plane", e.plane, palette.MIRROR_PLANE, True),
-                                           ("world/true_plane", e.true_plane, palette.TRUE_PLANE, False)):
-            if plane is None:
-                continue
-            quad = plane.square(0.6 * r)
-            if filled:
-                rec.log(path, rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]],
-                                        albedo_factor=(*color, 60)), static=True)
-            rec.log(f"{path}/outline", rr.LineStrips3D([np.vstack([quad, quad[:1]])], colors=[color], radii=0.006),
-                    static=True)
-            rec.log(f"{path}/normal", rr.Arrows3D(origins=[plane.point], vectors=[0.4 * r * plane.normal],
-                                                  colors=[color], radii=0.012), static=True)
+        # The mirror plane used: a translucent square with its normal; the true plane: an outline. A plane
+        # that training refines (--refine-plane) moves: it is logged at step 0 here and at every step after.
+        self._plane_size = 0.6 * r
+        self._plane_moves = e.plane is not None and bool(e.settings.get("refine_plane"))
+        if self._plane_moves:
+            rec.set_time(STEP, sequence=0)
+        if e.plane is not None:
+            self._log_plane("world/mirror_plane", e.plane, palette.MIRROR_PLANE, filled=True, static=not self._plane_moves)
+        if e.true_plane is not None:
+            self._log_plane("world/true_plane", e.true_plane, palette.TRUE_PLANE, filled=False, static=True)
         self._frustum_scale = 0.12 * r
         for info, path in zip(e.cameras, camera_paths(e.cameras)):
             self._log_camera(path, info.camera, COLORS[info.kind], info.image)
@@ -193,6 +192,15 @@ class RerunObserver(Observer):
             ),
             static=True,
         )
+
+    def _log_plane(self, path: str, plane: Plane, color: tuple[int, int, int], filled: bool, static: bool) -> None:
+        quad, rec = plane.square(self._plane_size), self.rec
+        if filled:
+            rec.log(path, rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]],
+                                    albedo_factor=(*color, 60)), static=static)  # fmt: skip
+        rec.log(f"{path}/outline", rr.LineStrips3D([np.vstack([quad, quad[:1]])], colors=[color], radii=0.006), static=static)
+        rec.log(f"{path}/normal", rr.Arrows3D(origins=[plane.point], vectors=[0.67 * self._plane_size * plane.normal],
+                                              colors=[color], radii=0.012), static=static)  # fmt: skip
 
     def _log_camera(self, path: str, cam: Camera, color: tuple[int, int, int], image: np.ndarray | None,
                     pose_static: bool = True) -> None:
@@ -228,6 +236,11 @@ class RerunObserver(Observer):
                 rec.log(f"curves/{group}/{entity_name(k)}", rr.Scalars(float(v)))
             if event.mirror_c2w is not None and self._mirror_names:
                 self._log_mirrors(event)
+            if event.plane is not None and self._plane_moves:
+                self._log_plane("world/mirror_plane", event.plane, palette.MIRROR_PLANE, filled=True, static=False)
+                for k in ("plane_err_deg", "plane_err_offset"):
+                    if getattr(event, k) is not None:
+                        rec.log(f"curves/plane/{k.removeprefix('plane_')}", rr.Scalars(float(getattr(event, k))))
             self._maybe_flush()
 
     def _log_mirrors(self, e: StepEvent) -> None:

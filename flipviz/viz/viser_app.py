@@ -162,6 +162,7 @@ class App(Observer):
         self._pending_setup: SetupEvent | None = None
         self._last_step: StepEvent | None = None
         self._last_images: ImagesEvent | None = None
+        self._plane: Plane | None = None  # the refined mirror plane of the last StepEvent (--refine-plane)
         self._test_psnr: float | None = None
         self._hist_step: list[float] = []
         self._hist_psnr: list[float] = []
@@ -371,7 +372,7 @@ class App(Observer):
             self.novel.reset()
             self.compare.clear()
             with self._ev_lock:
-                self.setup, self._last_step, self._test_psnr, self.mirror_c2w = None, None, None, None
+                self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = None, None, None, None, None
                 self._hist_step, self._hist_psnr = [], []
             out = None if self._base_out is None else Path(f"{self._base_out}-restart{self.restarts}")
             self._start_run(replace(cfg, out=out, resume=None, rrd=None))
@@ -412,6 +413,8 @@ class App(Observer):
             self.step = event.step
             if event.mirror_c2w is not None:
                 self.mirror_c2w = event.mirror_c2w
+            if event.plane is not None:
+                self._plane = event.plane
             p = event.scalars.get("psnr")
             if p is not None and np.isfinite(p):
                 self._hist_step.append(float(event.step))
@@ -444,6 +447,7 @@ class App(Observer):
                         self._hist_step, self._hist_psnr = [], []
                     images, self._last_images = self._last_images, None
                     step_ev = self._last_step
+                    plane, self._plane = self._plane, None
                 if setup is not None:
                     self._new_run(setup)
                 now = time.monotonic()
@@ -458,6 +462,8 @@ class App(Observer):
                     last_plot = now
                 if images is not None:
                     self.mirror.on_images(images)
+                if plane is not None:
+                    self.mirror.follow_training(plane)
                 self.train.set_controls(self.status)
                 self._update_progress(step_ev)
             except Exception:

@@ -91,6 +91,7 @@ class MirrorLesson:
         gui = server.gui
         gui.add_markdown(LESSON)
         self.plane_text = gui.add_markdown("_No run yet._")
+        self.refine_text = gui.add_markdown("")  # the plane as training refines it (--refine-plane)
         self.show_gizmo = gui.add_checkbox("Show plane gizmo", False, hint="Drag its arrows and rings to move the plane")
         self.show_preview = gui.add_checkbox("Show plane preview", True)
         self.show_plane = gui.add_checkbox("Show mirror plane", True, hint="The translucent square of the plane")
@@ -142,6 +143,10 @@ class MirrorLesson:
         self.frustum_shows.on_update(lambda _: self._show_frustum_images())
         self.last_images: ImagesEvent | None = None
         self.quad: viser.MeshHandle | None = None  # the mirror plane, drawn apart from its gizmo
+        self.start_plane: Plane | None = None  # where training started the plane (it may move: --refine-plane)
+        self.true_plane: Plane | None = None
+        self.trail: list[np.ndarray] = []  # the tip of the refined plane's normal, step after step
+        self.refining = False  # this run's training moves the plane
         self.trains_mirrors, self.dropped = True, False
 
     # ---- per run ----------------------------------------------------------------------------
@@ -162,7 +167,12 @@ class MirrorLesson:
                     plane = mirror_plane(preset, self.inputs, self.sphere, setup.true_plane)
                 except Exception:
                     plane = mirror_plane("opposite", self.inputs, self.sphere)
-            self.train_plane = plane
+            self.train_plane = self.start_plane = plane
+            self.true_plane, self.trail = setup.true_plane, []
+            self.refining = setup.plane is not None and bool(setup.settings.get("refine_plane"))
+            self.refine_text.content = (
+                "_Training refines this plane: it moves with the mirrored rays' loss (orange trail)._" if self.refining else ""
+            )
             self.scores = {}
             r = float(setup.sphere_radius)
             scene = self.server.scene
@@ -187,7 +197,7 @@ class MirrorLesson:
     def clear(self) -> None:
         with self._lock:
             if self.gizmo is not None:
-                for name in ("/plane", "/mirror_plane", "/preview"):
+                for name in ("/plane", "/mirror_plane", "/preview", "/plane_trail"):
                     self.server.scene.remove_by_name(name)
             self.gizmo, self.preview, self.preview_cams, self.preview_frame, self.quad = None, [], [], None, None
 
@@ -225,6 +235,34 @@ class MirrorLesson:
         self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane), plane.point
         self.moved = True
         self._apply_plane(plane)
+
+    def follow_training(self, plane: Plane) -> None:
+        """Training moved the plane (--refine-plane): the quad and, unless you moved it, the gizmo follow;
+        the trail of its normal's tip grows; the text says how far it moved and, where known, its error."""
+        with self._lock:
+            if self.start_plane is None or self.sphere is None:
+                return
+            r = float(self.sphere.radius)
+            tip = (plane.point + 0.4 * r * plane.normal).astype(np.float32)
+            if self.trail and np.linalg.norm(tip - self.trail[-1]) < 1e-3 * r:
+                return  # no visible change: nothing sent
+            self.trail.append(tip)
+            self.train_plane = plane  # Reset plane goes back to the plane training uses now
+            if self.quad is not None:
+                self.quad.wxyz, self.quad.position = plane_wxyz(plane), plane.point
+            if self.gizmo is not None and not self.moved:
+                self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane), plane.point
+            if len(self.trail) > 1:
+                segs = np.stack([np.stack(self.trail[:-1]), np.stack(self.trail[1:])], axis=1)
+                self.server.scene.add_line_segments("/plane_trail", segs, palette.MIRROR_PLANE, thickness=3.0,
+                                                    thickness_units="screen")  # fmt: skip
+            moved_deg, moved_off = plane_error(plane, self.start_plane)
+            text = f"**Refined plane:** turned {moved_deg:.2f}° and moved {moved_off:.3f} from where training started it"
+            if self.true_plane is not None:
+                err0, err = plane_error(self.start_plane, self.true_plane), plane_error(plane, self.true_plane)
+                text += (f"; off the true plane by **{err[0]:.2f}° / {err[1]:.3f}** "
+                         f"(it started {err0[0]:.2f}° / {err0[1]:.3f} off)")  # fmt: skip
+            self.refine_text.content = text + "."
 
     def reset_plane(self) -> None:
         if self.train_plane is not None and self.gizmo is not None:
@@ -286,9 +324,8 @@ class MirrorLesson:
                 " - this method trains on **no** mirrored view; this is the plane a Flip run would use."
             )
         else:
-            self.plane_text.content = where + (
-                " - the training plane." if same else " - **moved**: restart to train with it."
-            )
+            trained = " - where training started the plane." if self.refining else " - the training plane."
+            self.plane_text.content = where + (trained if same else " - **moved**: restart to train with it.")
 
     def _preview_wanted(self) -> bool:
         return bool(self.show_preview.value and self.moved)

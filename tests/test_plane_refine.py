@@ -1,0 +1,143 @@
+"""The mirror plane as a parameter of training (training/flip.py: MirrorPlane, --refine-plane)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from flipviz.data.builtin import load_builtin
+from flipviz.data.cameras import rays_from_c2w
+from flipviz.data.dataset import Plane
+from flipviz.data.protocol import make_split
+from flipviz.data.rays import RayBank
+from flipviz.geometry.mirror import exact_reflected_camera, initial_mirrored_camera, make_mirror_set
+from flipviz.geometry.sphere import fit_camera_sphere
+from flipviz.geometry.symmetry import plane_error
+from flipviz.model import GridConfig, ModelConfig, RadianceModel
+from flipviz.model.fit import fit
+from flipviz.training.config import TrainConfig
+from flipviz.training.flip import MirrorPlane
+from flipviz.training.trainer import Trainer
+
+TRUE = Plane(np.zeros(3), np.array([1.0, 0.0, 0.0]))  # the chair's
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def turned(plane: Plane, deg: float, offset: float) -> Plane:
+    """`plane` turned by `deg` about the vertical and moved by `offset` along its normal."""
+    n = Rotation.from_euler("z", deg, degrees=True).apply(plane.normal)
+    return Plane(plane.point + offset * plane.normal, n)
+
+
+def test_the_plane_motion_keeps_mirrored_cameras_exact_and_moves_lookat_ones_rigidly():
+    """c2w(P) = S_P S_P0 c2w(P0): a camera reflected through P0 becomes the one reflected through P."""
+    scene = load_builtin("chair", 16)
+    cams = [v.camera for v in make_split(scene, 1).inputs]
+    p0, p1 = turned(TRUE, 4.0, 0.03), turned(TRUE, -2.0, -0.05)
+    mp = MirrorPlane(p0)
+    with torch.no_grad():  # move the parameters onto p1: tilt along (u, v), shift along n0
+        n1 = torch.as_tensor(p1.normal, dtype=torch.float32)
+        k = 1.0 / float(n1 @ mp.n0)
+        mp.tilt.copy_(torch.stack([k * (n1 @ mp.u), k * (n1 @ mp.v)]))
+        mp.shift.copy_(torch.as_tensor(float((p1.point - p0.point) @ p1.normal) / float(p1.normal @ p0.normal)))
+    deg, off = plane_error(mp.plane(), p1)
+    assert deg < 1e-4 and off < 1e-5, (deg, off)
+    motion = mp.motion().detach().double().numpy()
+    for c in cams:
+        moved = motion @ exact_reflected_camera(c, p0).c2w
+        assert np.allclose(moved, exact_reflected_camera(c, p1).c2w, atol=1e-5)
+    sphere = fit_camera_sphere(cams)
+    look = [motion @ initial_mirrored_camera(c, p0, sphere).c2w for c in cams]
+    assert all(np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-5) and np.linalg.det(m[:3, :3]) > 0 for m in look)
+    assert np.allclose(MirrorPlane(p0).motion().detach().numpy(), np.eye(4), atol=1e-6)  # it starts at P0
+
+
+@pytest.fixture(scope="module")
+def known_field():
+    """A field that knows the whole chair (all 16 ring views, 32 px): mirrored views rendered from it
+    agree with the flipped inputs exactly when they are posed through the true plane."""
+    scene = load_builtin("chair", 32)
+    split = make_split(scene, 1)
+    torch.manual_seed(0)
+    model = RadianceModel(ModelConfig(field=GridConfig(grid_res=(32, 48), upsample_at=(0.3,)), n_samples=48),
+                          scene.bbox, scene.near, scene.far, with_beta=False)  # fmt: skip
+    fit(model, split.inputs + split.tests, 400, batch_rays=2048)
+    return model, split.inputs
+
+
+def plane_gradient(model: RadianceModel, inputs, start: Plane) -> MirrorPlane:
+    """The mirrored rays' photometric loss, back-propagated to a MirrorPlane starting at `start`."""
+    ms = make_mirror_set(inputs, start, pose="reflect")
+    bank = RayBank.from_images(ms.cameras, [v.rgb for v in ms.views], "cpu")
+    c2w = torch.as_tensor(np.stack([c.c2w for c in ms.cameras]), dtype=torch.float32)
+    mp = MirrorPlane(start)
+    idx = bank.sample(8192, torch.Generator().manual_seed(0))
+    o, d = rays_from_c2w((mp.motion() @ c2w)[bank.view[idx]], bank.dirs_cam[idx])
+    loss = (model.render_rays(o, d, training=False)["rgb"] - bank.rgb[idx]).pow(2).mean()
+    loss.backward()
+    return mp
+
+
+@pytest.mark.parametrize("deg, offset", [(3.0, 0.0), (-3.0, 0.0), (0.0, 0.06), (0.0, -0.06)])
+def test_the_plane_gradient_points_back_to_the_true_plane(known_field, deg, offset):
+    model, inputs = known_field
+    start = turned(TRUE, deg, offset)
+    mp = plane_gradient(model, inputs, start)
+    g_tilt, g_shift = mp.tilt.grad, mp.shift.grad
+    assert float(g_tilt.norm()) > 0 and float(g_shift.abs()) > 0
+    before = plane_error(mp.plane(), TRUE)
+    with torch.no_grad():  # a small step down the gradient of the perturbed part brings the plane closer
+        if deg:
+            mp.tilt -= 0.01 * g_tilt / g_tilt.norm()
+        else:
+            mp.shift -= 0.005 * torch.sign(g_shift)
+    after = plane_error(mp.plane(), TRUE)
+    k = 0 if deg else 1
+    assert after[k] < before[k] - (0.3 if deg else 0.003), (before, after)
+
+
+def test_a_symmetric_object_keeps_its_exact_plane(tmp_path):
+    """Started from the chair's exact plane, refinement leaves it there (0.3 deg, 0.01 units). Measured: 0.11° /
+    0.000 at 64 px and 400 steps, 0.08° / 0.001 at the defaults (100 px, 600); at 48 px and 300 steps it drifts
+    0.37°: the lighting is not symmetric, and a coarse model lets the photometric optimum wander."""
+    tr = Trainer(TrainConfig(scene="chair", res=64, steps=400, mirror_plane="scene", out=tmp_path / "run", no_rrd=True,
+                             images_every=0, checkpoint_every=0))  # fmt: skip
+    m = tr.run()
+    deg, off = plane_error(tr.flip.current_plane(), TRUE)
+    assert m["plane"]["refined_error_deg"] == pytest.approx(deg) and deg < 0.3 and off < 0.01, (deg, off)
+    assert m["plane"]["error_deg"] < 1e-9  # it started exact
+
+
+def test_refinement_recovers_a_plane_turned_5_degrees_and_moved_5_hundredths(tmp_path):
+    """The default run (Flip+U, 100 px, 600 steps) on the chair, its plane started 5° and 0.05 off."""
+    start = turned(TRUE, 5.0, 0.05)
+    arg = ",".join(map(str, start.point)) + ";" + ",".join(map(str, start.normal))
+    tr = Trainer(TrainConfig(scene="chair", mirror_plane=arg, out=tmp_path / "run", no_rrd=True, images_every=0,
+                             checkpoint_every=0))  # fmt: skip
+    assert tr.cfg.refine_plane and (tr.cfg.res, tr.cfg.steps) == (100, 600)
+    tr.run()
+    deg, off = plane_error(tr.flip.current_plane(), TRUE)
+    assert deg < 1.0 and off < 0.015, (deg, off)  # from 5.00° / 0.050
+
+
+@pytest.mark.parametrize("field", ["grid", "nerf"])
+def test_both_fields_move_the_plane_and_a_resumed_run_keeps_it(tmp_path, field):
+    """The plane is a parameter whatever the field; --no-refine-plane keeps it fixed; a checkpoint holds it."""
+    start = turned(TRUE, 3.0, 0.0)
+    arg = ",".join(map(str, start.point)) + ";" + ",".join(map(str, start.normal))
+    kw = dict(scene="chair", res=16, steps=6, batch_rays=128, n_samples=16, field=field, mirror_plane=arg, no_rrd=True,
+              images_every=0)  # fmt: skip
+    tr = Trainer(TrainConfig(**kw, out=tmp_path / "a"))
+    m = tr.run()
+    assert m["plane"]["refined_change_deg"] > 0.0 or m["plane"]["refined_change_offset"] > 0.0
+    moved = tr.flip.current_plane()
+    again = Trainer(TrainConfig(**kw, out=tmp_path / "b", resume=tmp_path / "a"))
+    assert plane_error(again.flip.current_plane(), moved) == pytest.approx((0.0, 0.0), abs=1e-6)
+    fixed = Trainer(TrainConfig(**kw, out=tmp_path / "c", refine_plane=False))
+    assert "refined" not in fixed.run()["plane"] and fixed.flip.current_plane() is None
