@@ -147,7 +147,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ poses
     def current_poses(self) -> torch.Tensor:
-        """(V, 4, 4) current poses of all training views (refined where BA is on)."""
+        """(V, 4, 4) current poses of all training views (mirrors: moved with the refined plane and by BA)."""
         return self.flip.poses()
 
     def mirror_c2w(self) -> np.ndarray | None:

@@ -51,8 +51,9 @@ class TrainPanel:
         self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
         self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
         with gui.add_folder("Restart", expand_by_default=True):
-            self.scene_dd = guard_choice(gui.add_dropdown("Scene", (*SCENES, DATA_FOLDER), hint="A built-in object, or your own folder"), (*SCENES, DATA_FOLDER))
-            self.data_txt = gui.add_text("Data folder", "", hint="A scene folder under the app's browse roots (--data, --browse-root)")
+            choices = (*SCENES, DATA_FOLDER)
+            self.scene_dd = guard_choice(gui.add_dropdown("Scene", choices, hint="A built-in object, or your own folder"), choices)
+            self.data_txt = gui.add_text("Data folder", "", hint="A scene folder under the browse roots (--data, --browse-root)")
             self.method_dd = guard_choice(gui.add_dropdown("Method", METHODS), METHODS)
             self.config_dd = guard_choice(gui.add_dropdown("Configuration", CONFIGS), CONFIGS)
             self.steps_num = guard_number(gui.add_number("Steps", 600, min=1, max=MAX_STEPS, step=1), 1, MAX_STEPS)
