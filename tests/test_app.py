@@ -41,14 +41,16 @@ def app(tmp_path_factory):
         checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("run"), render_duty=0.5, view_width=128,
         unconfident_plane="use",  # at 32 px the chair's estimate may be doubted: these tests need the mirrors
     )  # fmt: skip
-    a = App(cfg).start()  # the app's default plane, auto: the run starts after the estimate (~10-20 s)
-    deadline = time.monotonic() + 120
-    while (a.setup is None or a.step < 2) and time.monotonic() < deadline:
-        assert a.status != "error", a.message
-        time.sleep(0.1)
-    assert a.setup is not None and a.step >= 2, f"training did not start: {a.status} {a.message}"
-    yield a
-    a.stop()
+    a = App(cfg).start()  # the app's default plane, auto: the run starts after the estimate (~10-20 s idle)
+    try:  # whatever happens, the app (and its 100k-step run) is stopped
+        deadline = time.monotonic() + 600  # a generous bound: a busy machine makes the estimate slow
+        while (a.setup is None or a.step < 2) and time.monotonic() < deadline:
+            assert a.status != "error", a.message
+            time.sleep(0.1)
+        assert a.setup is not None and a.step >= 2, f"training did not start: {a.status} {a.message}"
+        yield a
+    finally:
+        a.stop()
     assert a.trainer is None and not a._thread.is_alive()
 
 
