@@ -62,10 +62,9 @@ def summary(on: list[dict], off: list[dict], scenes: list[str]) -> str:
             continue
         mean = lambda d: float(np.mean([num(r, "psnr") for r in d.values()]))  # noqa: E731
         g = {n: num(refined[n], "psnr") - num(bl[n], "psnr") for n in refined if n in bl}
-        before = [num(r, "plane_error_deg") for r in refined.values() if r.get("mirrors_trained") == "True"]
-        after = [num(r, "refined_error_deg") for r in refined.values() if r.get("mirrors_trained") == "True"]
-        off_b = [num(r, "plane_error_offset") for r in refined.values() if r.get("mirrors_trained") == "True"]
-        off_a = [num(r, "refined_error_offset") for r in refined.values() if r.get("mirrors_trained") == "True"]
+        kept = [r for r in refined.values() if r.get("mirrors_trained") == "True"]
+        before, off_b = [num(r, "plane_error_deg") for r in kept], [num(r, "plane_error_offset") for r in kept]
+        after, off_a = [num(r, "refined_error_deg") for r in kept], [num(r, "refined_error_offset") for r in kept]
         dropped = sum(r.get("mirrors_trained") == "False" for r in refined.values())
         err = lambda d, o: f"{max(d):.2f}° / {max(o):.3f}" if d and None not in d else "-"  # noqa: E731
         cells = [scene, f"{mean(bl):.2f}", f"{mean(fixed):.2f}" if fixed else "-", f"{mean(refined):.2f}",

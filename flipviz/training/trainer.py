@@ -210,7 +210,8 @@ class Trainer:
                     scalars = self._train_step()
                 self.train_seconds += time.perf_counter() - t0
                 if self.step % cfg.log_every == 0 or self.step == cfg.steps:
-                    self._emit("on_step", StepEvent(self.step, cfg.steps, self.train_seconds, scalars, **self._pose_report()))
+                    self._emit("on_step", StepEvent(self.step, cfg.steps, self.train_seconds, scalars, **self._pose_report(),
+                                                 **self._plane_now()))
                 if cfg.images_every > 0 and self.step % cfg.images_every == 0 and self.step < cfg.steps:
                     self._emit("on_images", self._images_event())
                 if cfg.checkpoint_every > 0 and self.step % cfg.checkpoint_every == 0:
@@ -284,7 +285,7 @@ class Trainer:
             m["plane"] = self._plane_report()
         pose = self._pose_report()
         if pose:
-            m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items() if k.startswith("mirror_")}
+            m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items()}
         return m
 
     def close(self) -> None:
@@ -388,17 +389,22 @@ class Trainer:
                 rep["refined_error_deg"], rep["refined_error_offset"] = plane_error(refined, true)
         return rep
 
+    def _plane_now(self) -> dict:
+        """The refined plane now and its error where known (StepEvent's plane fields); {} when not refined."""
+        plane, true = self.flip.current_plane(), self.scene.symmetry_plane
+        if plane is None:
+            return {}
+        if true is None:
+            return {"plane": plane}
+        deg, offset = plane_error(plane, true)
+        return {"plane": plane, "plane_err_deg": deg, "plane_err_offset": offset}
+
     def _pose_report(self) -> dict:
-        """The mirrored poses now (and the plane, when it is refined), with their errors where known."""
+        """The mirrored poses now, with their change and, where known, their error."""
         c2w = self.mirror_c2w()
         if c2w is None:
             return {}
         rep: dict = {}
-        plane, true = self.flip.current_plane(), self.scene.symmetry_plane
-        if plane is not None:
-            rep["plane"] = plane
-            if true is not None:
-                rep["plane_err_deg"], rep["plane_err_offset"] = plane_error(plane, true)
         init = [v.camera.c2w for v in self.training.mirror_views]
         change = np.array([pose_errors(a, b) for a, b in zip(c2w, init)])
         rep.update(mirror_c2w=c2w, mirror_rot_change_deg=change[:, 0], mirror_trans_change=change[:, 1])
