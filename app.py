@@ -1,15 +1,13 @@
 """The flipviz browser app: `python app.py --scene chair` (then open the printed URL).
 
-Trains a run in the background and shows it live in viser; see `flipviz.viz.viser_app`.
+Trains a run in the background and shows it live in viser; see `flipviz.viz.viser_app`. The same
+as `flipviz app ...`: bad input is one line, and a Ctrl-C, even during the first imports, stops it
+gracefully.
 """
 
 import sys
 
-import tyro
-
-from flipviz.cli import guarded
-from flipviz.viz.viser_app import AppConfig, run_app
+from flipviz.cli import main
 
 if __name__ == "__main__":
-    cfg = tyro.cli(AppConfig, description=__doc__)
-    sys.exit(guarded(lambda: run_app(cfg) or 0))
+    sys.exit(main(["app", *sys.argv[1:]]))

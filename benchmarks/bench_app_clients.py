@@ -8,7 +8,13 @@ server sends (background images included). Training speed = trainer steps / wall
 each phase, compared with the solo phases around it. Target: with 4 clients, training keeps
 >= 50% of its solo speed.
 
+With --hostile, each client asks for what the GUI never offers: "Max resolution" 6000 (sent as a
+raw GuiUpdateMessage) and a 6000 x 3000 px viewport. The server clamps both (viz/viser_guard.py).
+Target (issue 24): with one such client, training keeps >= 80% of its solo speed; before the clamp,
+one client stopped training for 182 s.
+
     python benchmarks/bench_app_clients.py            # res 100, 30 s phases: 0, 1, 0, 4, 0 clients
+    python benchmarks/bench_app_clients.py --hostile --clients 0 1 0
 """
 
 from __future__ import annotations
@@ -45,37 +51,47 @@ class BenchConfig:
     render_duty: float = 0.25
     warmup_s: float = 20.0
     """Training time before the first phase (the first steps are slower)."""
+    hostile: bool = False
+    """Clients ask for 6000 px renders (Max resolution 6000, a 6000 x 3000 viewport)."""
     out: Path | None = None
     """Write the results as JSON here."""
 
 
-async def drag(url: str, k: int, seconds: float, center: np.ndarray, radius: float) -> int:
+HOSTILE_WIDTH = 6000
+
+
+async def drag(url: str, k: int, seconds: float, center: np.ndarray, radius: float, hostile: bool = False) -> int:
     """One client: orbit (2 s at 30 Hz), hold still (1 s), repeat; returns how many background images arrived."""
+    size = (HOSTILE_WIDTH // 2, HOSTILE_WIDTH) if hostile else (600, 800)  # (height, width)
     async with ViserTestClient(url) as c:
+        if hostile:
+            await c.send_camera(center + radius * np.array([1.0, 0.0, 0.5]), look_at=tuple(center), size=size)
+            uuid = (await c.wait_gui("Max resolution"))["uuid"]
+            await c.send("GuiUpdateMessage", uuid=uuid, updates={"value": HOSTILE_WIDTH})  # what a slider never sends
         t0 = time.monotonic()
         phase = 2 * math.pi * k / 4
         while time.monotonic() - t0 < seconds:
             for i in range(60):
                 a = phase + 0.02 * i
                 p = center + radius * np.array([math.cos(a), math.sin(a), 0.5])
-                await c.send_camera(p, look_at=tuple(center), size=(600, 800))
+                await c.send_camera(p, look_at=tuple(center), size=size)
                 await asyncio.sleep(1 / 30)
             phase += 1.2
             await asyncio.sleep(1.0)
         return sum(m["type"] == "BackgroundImageMessage" and bool(m.get("rgb_data")) for m in c.messages)
 
 
-def _clients_process(url: str, n: int, seconds: float, center, radius: float, q) -> None:
+def _clients_process(url: str, n: int, seconds: float, center, radius: float, hostile: bool, q) -> None:
     """Runs in its own process (as browsers would), so the clients do not compete for the app's GIL."""
 
     async def run() -> list[int]:
-        return list(await asyncio.gather(*(drag(url, k, seconds, np.asarray(center), radius) for k in range(n))))
+        return list(await asyncio.gather(*(drag(url, k, seconds, np.asarray(center), radius, hostile) for k in range(n))))
 
     q.put("ready")
     q.put(asyncio.run(run()))
 
 
-def measure(app: App, n: int, seconds: float) -> dict:
+def measure(app: App, n: int, seconds: float, hostile: bool = False) -> dict:
     setup = app.setup
     center, radius = np.asarray(setup.sphere_center), float(setup.sphere_radius)
     url = f"ws://127.0.0.1:{app.port}"
@@ -84,7 +100,7 @@ def measure(app: App, n: int, seconds: float) -> dict:
     if n > 0:
         ctx = mp.get_context("spawn")
         q = ctx.Queue()
-        proc = ctx.Process(target=_clients_process, args=(url, n, seconds, center.tolist(), radius, q), daemon=True)
+        proc = ctx.Process(target=_clients_process, args=(url, n, seconds, center.tolist(), radius, hostile, q), daemon=True)
         proc.start()
         assert q.get(timeout=300) == "ready"  # the client process has imported; it connects now
     busy0, jobs0 = app.worker.busy_s, app.worker.jobs_done
@@ -123,7 +139,7 @@ def main(bc: BenchConfig) -> list[dict]:
         time.sleep(bc.warmup_s)
         rows = []
         for n in bc.clients:
-            r = measure(app, n, bc.seconds)
+            r = measure(app, n, bc.seconds, bc.hostile)
             rows.append(r)
             print(json.dumps(r), flush=True)
     finally:
@@ -139,6 +155,10 @@ def main(bc: BenchConfig) -> list[dict]:
         rel = f"{r['vs_adjacent_solo']:.0%}" if r["vs_adjacent_solo"] is not None else "-"
         busy = f"{r['render_busy_frac']:.0%}"
         print(f"{r['clients']:7d} | {r['steps_per_s']:7.2f} | {rel:>16} | {r['renders']:7d} | {busy}")
+    if bc.hostile:
+        one = [r["vs_adjacent_solo"] for r in rows if r["clients"] == 1 and r["vs_adjacent_solo"]]
+        if one:
+            print(f"target (one 6000 px client >= 80% of solo): {'met' if min(one) >= 0.8 else 'NOT met'} ({min(one):.0%})")
     four = [r["vs_adjacent_solo"] for r in rows if r["clients"] == 4 and r["vs_adjacent_solo"]]
     if four:
         print(f"target (4 clients >= 50% of solo): {'met' if min(four) >= 0.5 else 'NOT met'} ({min(four):.0%})")

@@ -12,6 +12,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
+import itertools
 import signal
 import sys
 import threading
@@ -21,7 +24,7 @@ from typing import Annotated, Callable, Literal
 
 import tyro
 
-from flipviz.errors import UserError
+from flipviz.errors import Interrupted, UserError
 from flipviz.training.config import TrainConfig
 
 
@@ -45,6 +48,8 @@ def _run_train(cfg: TrainConfig) -> int:
     """`flipviz train`: a progress bar, the Rerun recording, one summary line, how to open it."""
     import logging
 
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
     from flipviz.training.progress import ProgressObserver
     from flipviz.training.run import train
     from flipviz.training.trainer import default_run_dir
@@ -59,7 +64,8 @@ def _run_train(cfg: TrainConfig) -> int:
 
         rerun = make_rerun_observer(cfg, cfg.out)
     try:
-        _, metrics = train(cfg, [ProgressObserver()] + ([rerun] if rerun else []))
+        with logging_redirect_tqdm():  # a warning during training is a line of its own above the bar
+            _, metrics = train(cfg, [ProgressObserver()] + ([rerun] if rerun else []))
         print(f"[flipviz] run folder: {cfg.out}")
         if "psnr" in metrics:
             lp = metrics.get("lpips")
@@ -117,20 +123,42 @@ def _export(cmd: ExportScene) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from flipviz.bench import BenchConfig
-    from flipviz.viz.html_report import ReportConfig
-    from flipviz.viz.rerun_compare import CompareConfig
-    from flipviz.viz.video import VideoConfig
-    from flipviz.viz.viser_app import AppConfig
+    try:  # the first imports (torch, viser, rerun) take seconds: a Ctrl-C there is one line too
+        from flipviz.bench import BenchConfig
+        from flipviz.viz.html_report import ReportConfig
+        from flipviz.viz.rerun_compare import CompareConfig
+        from flipviz.viz.video import VideoConfig
+        from flipviz.viz.viser_app import AppConfig
+    except KeyboardInterrupt:
+        print("flipviz: interrupted (SIGINT)", file=sys.stderr)
+        return 128 + signal.SIGINT
 
     commands = {"train": TrainConfig, "app": AppConfig, "bench": BenchConfig, "export-scene": ExportScene,
                 "video": VideoConfig, "compare": CompareConfig, "report": ReportConfig}  # fmt: skip
-    cmd = tyro.extras.subcommand_cli_from_dict(
-        commands,
-        args=argv,
-        description=__doc__,
-    )
+    try:
+        cmd = _parsed(lambda: tyro.extras.subcommand_cli_from_dict(commands, args=argv, description=__doc__))
+    except UserError as e:
+        print(f"flipviz: error: {e}", file=sys.stderr)
+        return 2
     return guarded(lambda: _dispatch(cmd))
+
+
+def _parsed(parse: Callable[[], object]) -> object:
+    """tyro's parse, with a bad option as one UserError line instead of tyro's framed box (its first
+    paragraph: what is wrong, and what is allowed); --help and the rest print as tyro prints them."""
+    box = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(box):
+            parsed = parse()
+        sys.stderr.write(box.getvalue())  # any warning tyro printed
+        return parsed
+    except SystemExit as e:
+        if e.code in (0, None):
+            sys.stderr.write(box.getvalue())
+            raise
+        text = [ln.strip(" │╭╮╰╯") for ln in box.getvalue().splitlines()[1:]]  # the box's title line is its kind
+        first = itertools.takewhile(lambda ln: ln and set(ln) != {"─"}, text)
+        raise UserError(" ".join(first) + " (see --help)") from None
 
 
 def _dispatch(cmd) -> int:
@@ -166,10 +194,6 @@ def _video(cmd) -> int:
     return 0
 
 
-class Interrupted(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised where Ctrl-C would be, so they stop as gracefully as Ctrl-C."""
-
-
 _received: list[int] = []  # the stopping signals received by this process, in order
 
 
@@ -177,7 +201,7 @@ def _on_signal(signum: int, frame) -> None:
     _received.append(signum)
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
-    raise Interrupted(signal.Signals(signum).name)
+    raise Interrupted(signum)
 
 
 def guarded(fn: Callable[[], int]) -> int:
@@ -195,8 +219,8 @@ def guarded(fn: Callable[[], int]) -> int:
     except UserError as e:  # bad input: one line, no traceback
         print(f"flipviz: error: {e}".splitlines()[0], file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # outside the training loop (setup, loading): no traceback
-        signum = _received[0] if _received else signal.SIGINT
+    except KeyboardInterrupt as e:  # outside the training loop (setup, loading): no traceback
+        signum = _received[0] if _received else getattr(e, "signum", signal.SIGINT)
         print(f"flipviz: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
         return 128 + signum
     finally:

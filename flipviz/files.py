@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import re
+import shutil
 import uuid
 from contextlib import contextmanager
 from pathlib import Path
@@ -29,6 +32,37 @@ def atomic_path(path: Path | str) -> Iterator[Path]:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def free_bytes(path: Path | str) -> int:
+    """Free space on the disk that holds `path` (or its nearest existing parent)."""
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return shutil.disk_usage(p).free
+
+
+def need_space(path: Path | str, nbytes: float, what: str) -> None:
+    """An OSError (ENOSPC) naming `what` when the disk of `path` has less than `nbytes` free: a real
+    full disk fails inside writers (torch's zip writer, Rerun's file sink) in ways that are no
+    OSError and leave no readable file, so writers ask first."""
+    free = free_bytes(path)
+    if free < nbytes:
+        raise OSError(errno.ENOSPC, f"{what} needs about {nbytes / 1e6:.0f} MB, {free / 1e6:.0f} MB are free on that disk")
+
+
+TEMP_NAME = re.compile(r"^\..+\.\d+-[0-9a-f]{8}\.tmp")  # atomic_path's temporary names
+
+
+def remove_leftover_temps(folder: Path) -> int:
+    """Delete the temporary files that killed writes left in `folder` (a 50 MB checkpoint each);
+    call it holding the folder's lock, so that no write of another process is under way there."""
+    removed = 0
+    for p in Path(folder).iterdir() if Path(folder).is_dir() else ():
+        if p.is_file() and TEMP_NAME.match(p.name):
+            p.unlink(missing_ok=True)
+            removed += 1
+    return removed
 
 
 def write_text(path: Path | str, text: str) -> Path:
@@ -111,6 +145,15 @@ def signals_deferred() -> Iterator[None]:
                 handler(noted[0], None)
             elif handler == signal.SIG_DFL:
                 signal.raise_signal(noted[0])
+
+
+def inside_folder(root: Path, relative: str, listed_in: str) -> Path:
+    """`root / relative` when it stays inside `root` (checked on the names, so links inside the folder
+    still work), else a one-line UserError: a dataset file never makes flipviz read outside its folder."""
+    p = Path(os.path.normpath(Path(root) / relative))
+    if Path(relative).is_absolute() or not p.is_relative_to(os.path.normpath(root)):
+        raise UserError(f"{listed_in} names {relative!r}, outside its folder {root}; flipviz reads only inside it")
+    return p
 
 
 def inside_roots(path: Path | str, roots: list[Path], what: str) -> Path:

@@ -4,6 +4,7 @@ websocket clients speaking viser's protocol (flipviz.viz.viser_wsclient)."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import runpy
 import sys
 import time
@@ -484,18 +485,39 @@ def test_degenerate_client_cameras_are_survived(app, capfd):
     assert "Traceback" not in capfd.readouterr().err
 
 
-def test_a_malformed_message_is_one_log_line(app, caplog):
+def test_a_malformed_message_is_one_log_line(app, caplog, capfd):
+    """Undecodable bytes, and messages of the wrong shape (a text for a number, updates that are not a
+    table, a camera of text): each is one log line, and the app serves the next client."""
+
+    def logged(name: str) -> list[logging.LogRecord]:
+        return [r for r in caplog.records if r.name == name]
+
     async def go():
         async with ViserTestClient(url(app)) as c:
             await c.send_camera((4.0, -4.0, 3.0))
             await c.ws.send(b"\x93 not msgpack")
-            await asyncio.sleep(1.0)
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            uuid = (await c.wait_gui("Max resolution"))["uuid"]
+            await c.send("GuiUpdateMessage", uuid=uuid, updates={"value": "abc"})
+            await c.send("GuiUpdateMessage", uuid=uuid, updates=5)
+            t0 = time.monotonic()
+            while len(logged("asyncio")) < 2:  # viser's handler tasks fail, then asyncio logs them
+                assert time.monotonic() - t0 < 60, [r.getMessage() for r in caplog.records]
+                await asyncio.sleep(0.05)
+            await c.send("ViewerCameraMessage", wxyz="x")
+        async with ViserTestClient(url(app)) as c:  # the app still serves
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_gui("Max resolution")
 
-    with caplog.at_level("ERROR", logger="websockets.server"):
+    with caplog.at_level("ERROR"):
         run(go())
-    recs = [r for r in caplog.records if r.name == "websockets.server"]
-    assert recs and all(r.exc_info is None and "\n" not in r.getMessage() for r in recs)
-    assert "DecodeError" in recs[0].getMessage()
+    recs = logged("websockets.server") + logged("asyncio")
+    assert len(logged("websockets.server")) >= 1 and len(logged("asyncio")) >= 2
+    assert all(r.exc_info is None and "\n" not in r.getMessage() for r in recs), [r.getMessage() for r in recs]
+    assert "DecodeError" in logged("websockets.server")[0].getMessage()
+    assert any("invalid literal for int()" in r.getMessage() for r in logged("asyncio"))
+    assert "Traceback" not in capfd.readouterr().err
 
 
 def test_a_browser_cannot_name_folders_outside_the_roots_nor_oversize_values(app):

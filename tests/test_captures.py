@@ -146,6 +146,7 @@ def _one_line(fn) -> str:
     [
         (lambda d: d.pop("fl_x"), "missing key 'fl_x'"),
         (lambda d: d.update(camera_model="OPENCV_FISHEYE"), "not supported"),
+        (lambda d: d["frames"][2].update(camera_model="OPENCV_FISHEYE"), "frame 2: camera_model OPENCV_FISHEYE is not supported"),
         (lambda d: d["frames"][0].update(transform_matrix=[[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]), "not a rotation"),
         (lambda d: d["frames"][1].update(file_path="images/none.png"), "not found"),
         (lambda d: d.update(frames={}), "not a non-empty list"),

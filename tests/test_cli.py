@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -57,3 +58,22 @@ def test_ctrl_c_during_setup_is_one_line(tmp_path: Path, monkeypatch, capsys) ->
     code = cli.main(["train", "--scene", "chair", "--steps", "1", "--out", str(tmp_path / "run")])
     assert code == 130
     assert capsys.readouterr().err == "flipviz: interrupted (SIGINT)\n"
+
+
+@pytest.mark.parametrize("entry, heavy", [("flipviz.cli", "torch"), ("app.py", "viser")])
+def test_ctrl_c_during_the_first_imports_is_one_line(entry: str, heavy: str) -> None:
+    """A Ctrl-C lands while torch or viser is imported (seconds on a cold machine): one line, exit 130.
+    The interrupt is raised by an import hook, at the import itself, so the test needs no timing."""
+    hook = textwrap.dedent(f"""
+        import builtins, runpy, sys
+        real = builtins.__import__
+        def interrupted(name, *a, **k):
+            if name == {heavy!r}:
+                raise KeyboardInterrupt
+            return real(name, *a, **k)
+        builtins.__import__ = interrupted
+        sys.argv = [{entry!r}, *({"()" if entry == "app.py" else "('train',)"}), "--scene", "chair"]
+        runpy.run_path({entry!r}, run_name="__main__") if {entry!r}.endswith(".py") else runpy.run_module({entry!r}, run_name="__main__")
+    """)
+    r = _run("-c", hook)
+    assert r.returncode == 130 and r.stderr == "flipviz: interrupted (SIGINT)\n", (r.returncode, r.stderr[-2000:])

@@ -137,6 +137,19 @@ def test_a_second_run_on_the_same_folder_is_refused(tmp_path):
     Trainer(TrainConfig(**TINY, out=tmp_path / "run"))
 
 
+def test_a_run_removes_the_temporary_files_of_killed_saves_in_its_folder(tmp_path):
+    """A save killed mid-write leaves its temporary file (a 50 MB checkpoint each); the next run in
+    that folder removes them once it holds the folder's lock, and nothing else."""
+    run = tmp_path / "run"
+    run.mkdir()
+    leftovers = [run / ".checkpoint.4242-deadbeef.tmp.pt", run / ".metrics.77-0123abcd.tmp.json"]
+    for p in leftovers:
+        p.write_bytes(b"partial")
+    (run / "notes.tmp.txt").write_text("mine")
+    Trainer(TrainConfig(**TINY, steps=1, out=run))
+    assert not [p for p in leftovers if p.exists()] and (run / "notes.tmp.txt").read_text() == "mine"
+
+
 # ------------------------------------------------------------------------- 5: a full disk
 def test_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
     tr = Trainer(TrainConfig(**TINY, steps=30, checkpoint_every=10, out=tmp_path / "run"))
@@ -154,6 +167,74 @@ def test_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, mo
     assert m["status"] == "error" and "No space left on device" in m["message"] and "\n" not in m["message"]
     assert load_checkpoint(tmp_path / "run")["step"] == 10  # the last good one
     assert not [p for p in (tmp_path / "run").iterdir() if ".tmp" in p.name]
+
+
+def in_small_filesystem(tmp_path: Path, megabytes: int, script: str) -> subprocess.CompletedProcess:
+    """Run a bash `script` with a real `megabytes` tmpfs mounted at $D, in a private mount namespace
+    (`unshare -rm`: no root needed where user namespaces are allowed; else the test is skipped)."""
+    probe = subprocess.run(["unshare", "-rm", "true"], capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip(f"no private mount namespace here (unshare -rm: {probe.stderr.decode().strip()})")
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    setup = f'set -u; D={mnt}; PY={sys.executable}; mount -t tmpfs -o size={megabytes}m tmpfs $D || exit 99\n'
+    r = subprocess.run(["unshare", "-rm", "bash", "-c", setup + script], cwd=REPO, capture_output=True, text=True, timeout=600)
+    if r.returncode == 99:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    return r
+
+
+def test_a_real_full_disk_is_one_line_and_keeps_a_readable_checkpoint_and_recording(tmp_path):
+    """A 40 MB tmpfs with 28 MB free: the step-100 checkpoint (the grid still coarse) fits, the step-200
+    one (the grid refined, plus the copy an atomic write needs) does not. The run stops in one line; the checkpoint and the recording (which
+    stops before the disk fills) stay readable. Torch's zip writer and Rerun's file sink fail inside
+    on a real full disk (a RuntimeError, a file without footer): a mocked ENOSPC never showed that."""
+    script = textwrap.dedent("""
+        head -c 12M /dev/zero > $D/filler
+        $PY -m flipviz.cli train --scene chair --res 50 --steps 400 --checkpoint-every 100 --mirror-plane official \
+            --out $D/run --rrd $D/run.rrd 2> $D/err.txt > /dev/null
+        echo "rc=$?"
+        tr '\\r' '\\n' < $D/err.txt | grep -a "flipviz\\]\\|Traceback\\|Error" | grep -av "step/s" | sed 's/^/err: /'
+        $PY -c "from flipviz.training.checkpoint import load_checkpoint; print('step', load_checkpoint('$D/run')['step'])"
+        $(dirname $PY)/rerun rrd verify $D/run.rrd 2>&1 | tail -1 | sed 's/^/verify: /'
+    """)
+    r = in_small_filesystem(tmp_path, 40, script)
+    out = r.stdout
+    assert "rc=1" in out and "step 100" in out and "verify: 1 file verified without error" in out, out + r.stderr
+    errs = [ln for ln in out.splitlines() if ln.startswith("err: ")]
+    assert not [e for e in errs if "Traceback" in e or "RuntimeError" in e], out
+    assert any("cannot write" in e and "MB are free on that disk; the last good checkpoint is kept" in e for e in errs), out
+    assert any("the recording" in e and "stops here" in e for e in errs), out
+
+
+def test_compare_onto_a_full_disk_is_one_line(tmp_path):
+    runs = []
+    for method in ("bl", "flip"):
+        run = tmp_path / method
+        assert cli.main(["train", "--scene", "chair", "--method", method, "--res", "24", "--steps", "20", "--batch-rays", "256",
+                         "--n-samples", "32", "--grid-res", "24", "--mirror-plane", "official", "--out", str(run)]) == 0  # fmt: skip
+        runs.append(run)
+    script = f"$PY -m flipviz.cli compare {runs[0]} {runs[1]} --out $D/cmp.rrd; echo rc=$?; ls -A $D | sed 's/^/left: /'\n"
+    r = in_small_filesystem(tmp_path, 1, script)
+    err = r.stderr.strip()
+    assert "rc=2" in r.stdout and "left: " not in r.stdout, r.stdout + r.stderr
+    assert len(err.splitlines()) == 1 and "cannot write" in err and "MB are free on that disk" in err, err
+
+
+def test_an_interrupt_during_the_plane_estimate_leaves_a_readable_recording(tmp_path, monkeypatch, capsys):
+    """Ctrl-C while the plane is estimated (before training, before the recording had its sinks): the
+    .rrd is a readable recording saying so, not an empty file no reader scans."""
+    from flipviz.training import plane_estimate
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plane_estimate, "estimate_plane", interrupted)
+    code = cli.main(["train", "--scene", "chair", "--res", "24", "--steps", "5", "--mirror-plane", "auto",
+                     "--out", str(tmp_path / "run")])  # fmt: skip
+    assert code == 130 and capsys.readouterr().err.strip() == "flipviz: interrupted (SIGINT)"
+    logged = read_rrd(tmp_path / "run" / "recording.rrd")
+    assert "during its setup" in str(logged["/log"])
 
 
 # ------------------------------------------------------------------------- 6: poses that are not rotations
@@ -201,12 +282,63 @@ BAD = [
 ]  # fmt: skip
 
 
+BAD += [  # what tyro refuses while parsing: one line too, not its framed box
+    (["--steps", "1e12"], "Error parsing --steps"), (["--method", "foo"], "invalid choice 'foo'"), (["--nosuch", "3"], "Unrecognized"),
+    (["--plane-file", "."], "is not a file"),
+]  # fmt: skip
+
+
 @pytest.mark.parametrize("args, says", BAD)
 def test_bad_numbers_and_devices_are_one_line(tmp_path, capsys, args, says):
     code = cli.main(["train", "--scene", "chair", "--res", "24", "--out", str(tmp_path / "run"), *args])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and says in err, err
     assert not (tmp_path / "run").exists()  # nothing written for a refused run
+
+
+def _orbit_folder(root: Path, edit) -> Path:
+    """A real 16-px Blender orbit of the chair, then `edit(root, doc)` (it may rewrite files; a doc it
+    returns is written as transforms_test.json, as text when it is a string)."""
+    from flipviz.data import export_scene
+
+    export_scene("chair", root, res=16)
+    doc = edit(root, json.loads((root / "transforms_test.json").read_text()))
+    if doc is not None:
+        (root / "transforms_test.json").write_text(doc if isinstance(doc, str) else json.dumps(doc))
+    return root
+
+
+def _one_px_tall(root: Path, doc: dict) -> None:
+    import cv2
+
+    for png in root.rglob("*.png"):
+        cv2.imwrite(str(png), np.full((1, 16, 4), 255, np.uint8))
+
+
+EDGES = [  # (what a hostile or damaged folder holds, the edit, what the one line says); each was a traceback
+    ("nesting", lambda r, d: '{"camera_angle_x": 0.69, "frames": ' + "[" * 100_000 + "]" * 100_000 + "}", "nests too deeply"),
+    ("infinity", lambda r, d: json.dumps(d | {"camera_angle_x": float("inf")}), "Infinity is not a JSON number"),
+    ("one_px_tall", _one_px_tall, "at least 8 px"),
+    ("outside", lambda r, d: d | {"frames": [f | {"file_path": "../../../etc/passwd"} for f in d["frames"]]}, "outside its folder"),
+    ("far_camera", lambda r, d: d | {"frames": [f | {"transform_matrix": [[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}
+                                                for f in d["frames"]]}, "units out"),  # fmt: skip
+]
+
+
+@pytest.mark.parametrize("name, edit, says", EDGES, ids=[e[0] for e in EDGES])
+def test_damaged_data_folders_are_one_line(tmp_path, capsys, name, edit, says):
+    data = _orbit_folder(tmp_path / "data", edit)
+    code = cli.main(["train", "--data", str(data), "--res", "16", "--steps", "2", "--mirror-plane", "official",
+                     "--out", str(tmp_path / "run")])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and says in err, err
+
+
+def test_a_seed_beyond_64_bits_is_one_line(tmp_path, capsys):
+    for command in (["train", "--scene", "chair"], ["bench", "--scenes", "chair"]):
+        code = cli.main([*command, "--seed", str(2**64), "--res", "24", "--steps", "2", "--out", str(tmp_path / "o")])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and "--seed must be in" in err, err
 
 
 def test_bad_resume_checkpoints_are_one_line(tmp_path, capsys):
@@ -271,9 +403,52 @@ def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
     assert all(json.loads(f.read_text())["status"] == "ok" for f in out.glob("runs/*/result.json"))
 
 
+@pytest.mark.parametrize("target", ["group", "worker"])
+def test_a_sigterm_stops_a_two_worker_bench_with_an_idle_worker_within_seconds(tmp_path, target):
+    """A container stop or job scheduler sends SIGTERM to the whole process group; `kill PID` to one
+    worker. The case that hung: one worker idle in the pool's queue (its run failed at once), the
+    other training. The bench stops within 10 s, the training keeps its checkpoint, and resumes."""
+    out, data = tmp_path / "bench", tmp_path / "data"
+    frame = {"file_path": "./test/r_0", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}
+    (data / "broken").mkdir(parents=True)  # a scene whose run fails at once: its worker goes idle
+    (data / "broken" / "transforms_test.json").write_text(json.dumps({"camera_angle_x": 0.69, "frames": [frame]}))
+    cmd = [sys.executable, "-m", "flipviz.cli", "bench", "--scenes", "chair,broken", "--data-root", str(data),
+           "--methods", "bl", "--configs", "1", "--res", "24", "--steps", "1500", "--batch-rays", "256", "--n-samples", "32",
+           "--grid-res", "24", "--mirror-plane", "official", "--workers", "2", "--cpus-per-run", "1", "--out", str(out),
+           "--quiet"]  # fmt: skip
+    p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+    try:
+        t_end = time.monotonic() + 300
+        chair = broken = None
+        while not (chair and broken and (chair / "checkpoint.pt").is_file()):  # training, with a first checkpoint
+            assert time.monotonic() < t_end and p.poll() is None, ("the bench did not get going", p.poll(), p.stderr.read() if p.poll() is not None else "")
+            chair = next(iter(out.glob("runs/chair-*")), None)
+            broken = next(iter(out.glob("runs/broken-*/result.json")), None)
+            time.sleep(0.2)
+        if target == "group":
+            os.killpg(p.pid, signal.SIGTERM)
+        else:
+            os.kill(json.loads((chair / "started.json").read_text())["pid"], signal.SIGTERM)
+        t0 = time.monotonic()
+        _, err = p.communicate(timeout=120)
+        stopped_in = time.monotonic() - t0
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 128 + signal.SIGTERM and stopped_in < 10, (p.returncode, stopped_in, err[-3000:])
+    assert "Traceback" not in err and "run the same command again to resume" in err, err[-3000:]
+    saved = load_checkpoint(chair / "checkpoint.pt")["step"]
+    assert 0 < saved < 1500 and not (chair / "result.json").exists()
+    r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert json.loads((chair / "result.json").read_text())["status"] == "ok"
+
+
 # ------------------------------------------------------------------------- 11: the app
 @pytest.mark.parametrize("args, says", [
     (["--host", "10.99.99.99"], "cannot serve"), (["--device", "cuda"], "CUDA"), (["--resume", "/nonexistent"], "no checkpoint"),
+    (["--port", "70000"], "--port must be in 0..65535"),
 ])  # fmt: skip
 def test_app_refuses_bad_input_before_serving(tmp_path, capsys, args, says):
     code = cli.main(["app", "--scene", "chair", "--res", "24", "--port", "0", "--no-rrd", "--out", str(tmp_path / "r"), *args])

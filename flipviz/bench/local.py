@@ -14,33 +14,41 @@ from pathlib import Path
 
 from flipviz.bench.results import RESULT_FILE, STARTED_FILE
 from flipviz.bench.task import RunTask, died_result, execute_run
+from flipviz.errors import Interrupted
 
 _SLOT = 0
-
-
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 _RUNNING = False  # a run is under way in this worker
-_STOPPING = False  # the bench was interrupted: no further run starts in this worker
+_STOPPING = False  # this worker was told to stop: no further run starts in it
+STOP_GRACE_S = 30.0  # after an interrupt, how long a worker may take to save its checkpoint before it is killed
 
 
 def _stop_training(signum: int, frame) -> None:
+    """SIGTERM or SIGHUP in a worker: its run stops gracefully (checkpoint kept, resumable), once.
+
+    The handler never exits the process: an idle worker is blocked in the pool's call queue
+    holding its lock, and exiting there would block the other workers forever. An idle worker
+    ends when the pool sends it its sentinel, or is killed after STOP_GRACE_S.
+    """
     global _STOPPING
+    first = not _STOPPING
     _STOPPING = True
-    if not _RUNNING:  # idle: nothing to save
-        os._exit(0)
-    raise KeyboardInterrupt  # the run in this worker stops gracefully: checkpoint kept, resumable
+    if _RUNNING and first:
+        raise KeyboardInterrupt
 
 
 def _init_worker(threads: int, slots) -> None:
     """Pool initializer: thread share, progress row, and exit when the bench process dies.
 
-    A worker ignores Ctrl-C (the terminal sends it to the whole process group) and stops its run on
-    SIGTERM, which the bench sends to every worker when it is interrupted.
+    A worker ignores Ctrl-C (the terminal sends it to the whole process group; the bench relays it
+    as SIGTERM) and stops its run on SIGTERM or SIGHUP, whoever sends them.
     """
     global _SLOT
     import torch
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _stop_training)
+    signal.signal(signal.SIGHUP, _stop_training)
     torch.set_num_threads(max(1, threads))
     _SLOT = slots.get()
     parent = os.getppid()
@@ -56,14 +64,40 @@ def _init_worker(threads: int, slots) -> None:
 
 def _run_in_worker(task: RunTask) -> dict:
     global _RUNNING
+    interrupted = {"key": task.key, "status": "interrupted", "error": "interrupted before it started"}
     if _STOPPING:  # a task the pool had already queued to this worker (cancel() cannot reach it)
-        return {"key": task.key, "status": "interrupted", "error": "interrupted before it started"}
+        return interrupted
     task.slot = _SLOT
     _RUNNING = True
     try:
         return execute_run(task)
+    except KeyboardInterrupt:  # the signal landed before the training loop (e.g. while the scene loaded)
+        return interrupted | {"error": "interrupted while it started"}
     finally:
         _RUNNING = False
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Stop every worker within STOP_GRACE_S: SIGTERM (each run saves its checkpoint), the pool's
+    sentinels for idle ones, then SIGKILL for any still alive. Further stop signals are ignored
+    meanwhile, so a second Ctrl-C or a group signal cannot cut the cleanup short."""
+    main = threading.current_thread() is threading.main_thread()
+    before = {s: signal.signal(s, signal.SIG_IGN) for s in _STOP_SIGNALS} if main else {}
+    try:
+        procs = [p for p in list(getattr(pool, "_processes", {}).values()) if p.is_alive()]  # no public list
+        for proc in procs:
+            os.kill(proc.pid, signal.SIGTERM)
+        pool.shutdown(wait=False, cancel_futures=True)
+        deadline = time.monotonic() + STOP_GRACE_S
+        for proc in procs:
+            proc.join(max(0.0, deadline - time.monotonic()))
+        for proc in procs:
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
 
 
 def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], None]) -> None:
@@ -90,16 +124,15 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for f in done:
                     try:
-                        on_result(f.result())
+                        res = f.result()
                     except BrokenProcessPool:
                         broken.append(futures[f])
+                        continue
+                    on_result(res)
+                    if res.get("status") == "interrupted":  # a worker was stopped on its own: the bench stops
+                        raise Interrupted(signal.SIGTERM)
         except KeyboardInterrupt:  # stop the runs under way (they keep their checkpoints), start no more
-            for f in futures:
-                f.cancel()
-            for proc in list(getattr(pool, "_processes", {}).values()):  # the pool has no public list of its workers
-                if proc.is_alive():
-                    os.kill(proc.pid, signal.SIGTERM)
-            pool.shutdown(wait=True, cancel_futures=True)
+            _stop_workers(pool)
             raise
         finally:
             pool.shutdown(wait=not broken, cancel_futures=True)

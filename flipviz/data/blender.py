@@ -18,14 +18,14 @@ import numpy as np
 from flipviz.data.cameras import Camera, View
 from flipviz.data.dataset import DatasetError, SceneData, camera_to_world, check_resolution, read_transforms
 from flipviz.data.images import composite_on_white, read_rgba, save_rgba_png, uncomposite
-from flipviz.files import write_json
+from flipviz.files import inside_folder, write_json
 
 NEAR, FAR = 2.0, 6.0
 BBOX = np.array([[-1.5, -1.5, -1.5], [1.5, 1.5, 1.5]])
 
 
-def _image_path(root: Path, file_path: str) -> Path:
-    p = root / file_path
+def _image_path(root: Path, file_path: str, listed_in: str) -> Path:
+    p = inside_folder(root, file_path, listed_in)
     if p.suffix.lower() in (".png", ".jpg", ".jpeg"):
         return p
     return p.with_name(p.name + ".png")
@@ -76,8 +76,8 @@ def load_blender(
     views: dict[int, View] = {}
     size = None
     for index, file_path, c2w in entries:
-        ipath = _image_path(root, file_path)
-        if not ipath.is_file():
+        ipath = _image_path(root, file_path, jpath.name)
+        if not os.path.isfile(ipath):  # False, not an error, for a name the system refuses (too long)
             raise DatasetError(f"image {ipath} listed in {jpath.name} not found")
         rgba = read_rgba(ipath)
         if res is not None and res > rgba.shape[1]:

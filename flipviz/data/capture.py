@@ -25,6 +25,7 @@ every camera; `up` is the direction orthogonal to the cameras' x axes (`cameras_
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,9 +59,12 @@ class Intrinsics:
     dist: tuple[float, ...] = ()  # OpenCV (k1, k2, p1, p2[, k3[, k4, k5, k6]]); () = none
 
     def check(self, where: str) -> "Intrinsics":
-        vals = [self.fx, self.fy, self.cx, self.cy, *self.dist]
-        if self.width < 1 or self.height < 1 or not np.all(np.isfinite(vals)) or self.fx <= 0 or self.fy <= 0:
-            raise DatasetError(f"{where}: bad intrinsics (w {self.width}, h {self.height}, fx {self.fx}, fy {self.fy})")
+        """Sizes up to 65536 px, focal lengths in (0, 1e6] px, the principal point within ten image
+        sizes of the centre, |distortion| <= 1000: anything beyond is a damaged file, not a camera."""
+        w, h, vals = self.width, self.height, [self.fx, self.fy, self.cx, self.cy, *self.dist]
+        if not (0 < w <= 65536 and 0 < h <= 65536 and np.all(np.isfinite(vals)) and 0 < self.fx <= 1e6 and 0 < self.fy <= 1e6
+                and abs(self.cx - w / 2) <= 10 * w and abs(self.cy - h / 2) <= 10 * h and all(abs(d) <= 1e3 for d in self.dist)):  # fmt: skip
+            raise DatasetError(f"{where}: bad intrinsics (w {w}, h {h}, fx {self.fx}, fy {self.fy}, cx {self.cx}, cy {self.cy})")
         if len(self.dist) not in (0, 4, 5, 8):
             raise DatasetError(f"{where}: {len(self.dist)} distortion coefficients; OpenCV takes 4, 5 or 8")
         return self
@@ -115,7 +119,7 @@ def capture_view(
 ) -> View:
     """One frame of a capture: its image (alpha from `mask`, else the image's own) resampled into the
     flipviz pinhole at width `res`; alpha None when the frame has no mask."""
-    if not ipath.is_file():
+    if not os.path.isfile(ipath):  # False, not an error, for a name the system refuses (too long)
         raise DatasetError(f"image {ipath} listed in {listed_in} not found")
     rgba = read_rgba(ipath)
     if mask is not None:
@@ -207,6 +211,8 @@ def make_capture(
         raise DatasetError(f"{source}: images have different sizes {sorted(sizes)}; flipviz needs one size")
     masked = all(v.alpha is not None for v in vs)
     placing = [views[i] for i in splits.get("train", sorted(views))]  # the held-out frames never shape the box
+    if not placing:
+        raise DatasetError(f"{source}: no training frames (train_filenames is empty)")
     box, box_from = None, ""
     if masked:
         box, box_from = hull_box(placing), "masks"

@@ -18,6 +18,7 @@ import numpy as np
 from flipviz.data.capture import Intrinsics, capture_view, make_capture
 from flipviz.data.cameras import View
 from flipviz.data.dataset import DatasetError, SceneData
+from flipviz.files import inside_folder
 
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
 MODEL_FILES = ("cameras.bin", "cameras.txt")
@@ -68,11 +69,13 @@ def load_colmap(path: str | os.PathLike, res: int | None = None, images: str = "
     image_dir = root / images
     views: dict[int, View] = {}
     for k, (name, im) in enumerate(registered):
-        mask = next((p for p in (root / "masks" / name, (root / "masks" / name).with_suffix(".png")) if p.is_file()), None)
+        listed_in = f"the COLMAP model {model_dir}"
+        in_masks = inside_folder(root / "masks", name, listed_in)
+        mask = next((p for p in (in_masks, in_masks.with_suffix(".png")) if os.path.isfile(p)), None)
         intr = _intrinsics(rec.cameras[im.camera_id], f"{model_dir} camera {im.camera_id}")
         w2c = np.eye(4)
         w2c[:3] = im.cam_from_world().matrix()
         c2w = np.linalg.inv(w2c) @ OPENCV_TO_OPENGL
-        views[k] = capture_view(image_dir / name, mask, intr, c2w, res, k, f"the COLMAP model {model_dir}")
+        views[k] = capture_view(inside_folder(image_dir, name, listed_in), mask, intr, c2w, res, k, listed_in)
     points = np.array([p.xyz for p in rec.points3D.values()]) if rec.num_points3D() else None
     return make_capture(root.name, views, str(root), {}, points, None, {"format": "colmap", "model": str(model_dir)})

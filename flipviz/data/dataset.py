@@ -12,6 +12,9 @@ from flipviz.data.cameras import WORLD_UP, View
 from flipviz.errors import UserError
 
 
+MAX_COORDINATE = 1e6  # scene units: a camera further out is a damaged file (its arithmetic would overflow)
+
+
 class DatasetError(UserError):
     """Bad input data. Its message is one line, meant to be shown to the user as is."""
 
@@ -19,18 +22,34 @@ class DatasetError(UserError):
 def read_transforms(path: Path) -> dict:
     """A transforms JSON file (Blender or nerfstudio) as a dict; one-line DatasetError otherwise."""
     try:
-        meta = json.loads(path.read_text())
+        meta = json.loads(path.read_text(), parse_constant=_not_json)
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DatasetError(f"{path} is not valid JSON ({str(e).splitlines()[0]})") from None
+    except RecursionError:
+        raise DatasetError(f"{path} is malformed: its JSON nests too deeply") from None
     if not isinstance(meta, dict):
         raise DatasetError(f"{path} is malformed: the top level is a JSON {type(meta).__name__}, not an object with 'frames'")
     return meta
+
+
+def _not_json(name: str) -> float:
+    """NaN and Infinity are not JSON (Python's reader accepts them): refuse them in any field."""
+    raise json.JSONDecodeError(f"{name} is not a JSON number", name, 0)
 
 
 def check_resolution(res: object) -> None:
     """--res for a data folder: None (the data's own) or a positive integer."""
     if res is not None and (isinstance(res, bool) or not isinstance(res, (int, np.integer)) or res < 1):
         raise DatasetError(f"resolution must be a positive integer, got {res!r}")
+
+
+MIN_SIDE = 8  # px: an image smaller on a side has no structure to score (SSIM's window is 7 px)
+
+
+def check_image_size(width: int, height: int, what: str) -> None:
+    """Images (as loaded, after any resize) a run can score: at least MIN_SIDE px on each side; else one line."""
+    if min(width, height) < MIN_SIDE:
+        raise DatasetError(f"{what}: {width}x{height} px; a run needs at least {MIN_SIDE} px on each side")
 
 
 def camera_to_world(matrix: object, k: int) -> np.ndarray:
@@ -40,8 +59,12 @@ def camera_to_world(matrix: object, k: int) -> np.ndarray:
         c2w = np.concatenate([c2w, [[0.0, 0.0, 0.0, 1.0]]])
     if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
         raise ValueError(f"frame {k}: transform_matrix is not a finite 4x4 matrix")
+    if np.abs(c2w[:3, 3]).max() > MAX_COORDINATE:
+        raise ValueError(f"frame {k}: the camera is {np.abs(c2w[:3, 3]).max():.3g} units out, beyond {MAX_COORDINATE:g}")
     R = c2w[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or abs(np.linalg.det(R) - 1.0) > 1e-3:
+    with np.errstate(all="ignore"):  # huge entries overflow here: the check below refuses them
+        orthonormal = np.allclose(R.T @ R, np.eye(3), atol=1e-3) and abs(np.linalg.det(R) - 1.0) <= 1e-3
+    if not orthonormal:
         raise ValueError(f"frame {k}: the rotation of transform_matrix is not a rotation (orthonormal, det 1)")
     return c2w
 

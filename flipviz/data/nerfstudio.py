@@ -21,7 +21,7 @@ from flipviz.data.capture import Intrinsics, capture_view, make_capture
 from flipviz.data.cameras import View
 from flipviz.data.dataset import DatasetError, Plane, SceneData, camera_to_world, check_resolution, read_transforms
 from flipviz.data.images import save_rgba_png, uncomposite
-from flipviz.files import write_json
+from flipviz.files import inside_folder, write_json
 
 MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
 OPENCV_KEYS = ("k1", "k2", "p1", "p2")
@@ -70,7 +70,10 @@ def load_nerfstudio(path: str | os.PathLike, res: int | None = None) -> SceneDat
         for k, fr in enumerate(frames):
             if not isinstance(fr, dict):
                 raise ValueError(f"frame {k} is a JSON {type(fr).__name__}, not an object")
-            intr = _intrinsics(fr, meta, str(fr.get("camera_model", model)), f"{jpath} frame {k}")
+            frame_model = str(fr.get("camera_model", model))
+            if frame_model not in MODELS:  # a frame's own model, like the file's: never trained as a pinhole
+                raise ValueError(f"frame {k}: camera_model {frame_model} is not supported (flipviz reads {', '.join(MODELS)})")
+            intr = _intrinsics(fr, meta, frame_model, f"{jpath} frame {k}")
             entries.append((str(fr["file_path"]), camera_to_world(fr["transform_matrix"], k), intr, fr.get("mask_path")))
         applied = meta.get("applied_transform")
         if applied is not None:
@@ -80,26 +83,28 @@ def load_nerfstudio(path: str | os.PathLike, res: int | None = None) -> SceneDat
         aabb = meta.get("aabb_scale")
         if aabb is not None and not (np.isfinite(float(aabb)) and float(aabb) > 0):
             raise ValueError(f"aabb_scale = {aabb} is not a positive number")
-    except (KeyError, TypeError, ValueError) as e:
+    except (KeyError, TypeError, ValueError, OverflowError) as e:  # OverflowError: a size of 1e999
         what = f"missing key {e}" if isinstance(e, KeyError) else str(e).splitlines()[0]
         raise DatasetError(f"{jpath} is malformed: {what}") from None
 
     views: dict[int, View] = {}
     by_file: dict[str, int] = {}
     for k, (file_path, c2w, intr, mask_path) in enumerate(entries):
-        mask = root / str(mask_path) if mask_path is not None else None
-        views[k] = capture_view(root / file_path, mask, intr, c2w, res, k, jpath.name)
+        mask = inside_folder(root, str(mask_path), jpath.name) if mask_path is not None else None
+        views[k] = capture_view(inside_folder(root, file_path, jpath.name), mask, intr, c2w, res, k, jpath.name)
         by_file[file_path] = by_file[file_path.lstrip("./")] = k
 
     splits: dict[str, list[int]] = {}
     for split in ("train", "test"):
         names = meta.get(f"{split}_filenames")
+        if names is not None and not isinstance(names, list):
+            raise DatasetError(f"{jpath} is malformed: {split}_filenames is a JSON {type(names).__name__}, not a list")
         if names is not None:
             unknown = [n for n in names if str(n) not in by_file and str(n).lstrip("./") not in by_file]
             if unknown:
                 raise DatasetError(f"{jpath} is malformed: {split}_filenames lists {unknown[0]!r}, not a frame")
             splits[split] = sorted({by_file.get(str(n), by_file.get(str(n).lstrip("./"), -1)) for n in names})
-    points = _ply_points(root / meta["ply_file_path"]) if meta.get("ply_file_path") else None
+    points = _ply_points(inside_folder(root, str(meta["ply_file_path"]), jpath.name)) if meta.get("ply_file_path") else None
     extra = {"format": "nerfstudio", "camera_model": model}
     if meta.get("applied_transform") is not None:
         extra["applied_transform"] = np.asarray(meta["applied_transform"], dtype=np.float64).tolist()

@@ -13,15 +13,17 @@ written holds only such data, so all of them still load.
 
 from __future__ import annotations
 
+import errno
 import pickle
 from pathlib import Path
 
 import torch
 
 from flipviz.errors import UserError
-from flipviz.files import atomic_path, signals_deferred
+from flipviz.files import atomic_path, free_bytes, need_space, signals_deferred
 
 CHECKPOINT_NAME = "checkpoint.pt"
+SPACE_RESERVE = 16e6  # bytes a checkpoint leaves free on its disk, for the recording written beside it
 
 
 def checkpoint_path(path: Path | str) -> Path:
@@ -36,9 +38,25 @@ def checkpoint_path(path: Path | str) -> Path:
 
 def save_checkpoint(path: Path, state: dict) -> Path:
     """Write `state` (plain data + tensors) to `path`, atomically; interrupts wait until it is written."""
+    need_space(path, 1.05 * state_bytes(state) + SPACE_RESERVE, "the checkpoint")
     with signals_deferred(), atomic_path(path) as tmp:
-        torch.save(state, tmp)
+        try:
+            torch.save(state, tmp)
+        except RuntimeError as e:  # torch's zip writer reports a failed write (a full disk) so, not as OSError
+            free = free_bytes(tmp.parent)
+            raise OSError(errno.EIO, f"the write failed, {free / 1e6:.0f} MB free on that disk ({str(e).splitlines()[0][:80]})") from None
     return Path(path)
+
+
+def state_bytes(state) -> int:
+    """The bytes of the tensors in a (nested) state: about a checkpoint's size on disk."""
+    if isinstance(state, torch.Tensor):
+        return state.numel() * state.element_size()
+    if isinstance(state, dict):
+        return sum(state_bytes(v) for v in state.values())
+    if isinstance(state, (list, tuple)):
+        return sum(state_bytes(v) for v in state)
+    return 0
 
 
 def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") -> dict:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import types
+import typing
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Literal
@@ -29,6 +31,40 @@ def check_device(device: str) -> None:
         raise UserError(f"--device {device!r}: no CUDA device is available here (torch {torch.__version__}); use --device cpu")
     if dev.index is not None and dev.index >= torch.cuda.device_count():
         raise UserError(f"--device {device!r}: only {torch.cuda.device_count()} CUDA device(s) here")
+
+
+def fits(value: object, hint: object) -> bool:
+    """`value` is of the annotated type `hint`: Literal, X | None, tuple[int, ...], int (not a bool),
+    float (an int too), bool, str, Path (or its str, as saved in a checkpoint)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        return any(type(value) is type(a) and value == a for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return any(fits(value, a) for a in args)
+    if origin is tuple:
+        return isinstance(value, (tuple, list)) and all(fits(v, args[0]) for v in value)
+    if hint is type(None):
+        return value is None
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is Path:
+        return isinstance(value, (str, Path))
+    return isinstance(value, hint)  # bool, str
+
+
+def type_words(hint: object) -> str:
+    """The annotated type `hint` in words, for an error line."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        return "one of " + ", ".join(map(str, args))
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(type_words(a) for a in args)
+    if origin is tuple:
+        return f"a list of {type_words(args[0]).removeprefix('a ')}s"
+    words = {type(None): "none", float: "a number", int: "a whole number", bool: "true or false", str: "text", Path: "a path"}
+    return words.get(hint, getattr(hint, "__name__", str(hint)))
 
 
 # --preset paper: the paper's setting (Sec. V-A: vanilla NeRF, one network sampling 128 points, 50k
@@ -145,20 +181,25 @@ class TrainConfig:
                     setattr(self, name, value)
 
     def validate(self) -> "TrainConfig":
-        """Every setting within its stated limits, else one `UserError` line; train, app and bench call it."""
+        """Every setting of its type and within its stated limits, else one `UserError` line; train,
+        app and bench call it, and so does every run read back from a checkpoint."""
+        hints = typing.get_type_hints(TrainConfig)
+        for f in fields(TrainConfig):  # the app's config adds its own fields, which tyro checked
+            if not fits(getattr(self, f.name), hints[f.name]):
+                raise UserError(f"--{f.name.replace('_', '-')} must be {type_words(hints[f.name])}, got {getattr(self, f.name)!r}")
         bounds = {  # name: (lowest, highest)
             "config": (1, 8), "res": (8, 1024), "steps": (1, 10_000_000), "batch_rays": (1, 1_000_000),
             "n_samples": (2, 1024), "log_every": (1, 10_000_000), "images_every": (0, 10_000_000),
             "checkpoint_every": (0, 10_000_000), "uncertainty_start": (0.0, 1.0), "density_weight": (0.0, 1e6),
-            "plane_lr": (0.0, 1.0), "plane_start": (0.0, 1.0),
+            "plane_lr": (0.0, 1.0), "plane_start": (0.0, 1.0), "seed": (0, 2**63 - 1),
         }  # fmt: skip
         for name, (lo, hi) in bounds.items():
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
-                raise UserError(f"--{name.replace('_', '-')} must be in {lo}..{hi}, got {v!r}")
-        if self.ba_start is not None and (isinstance(self.ba_start, bool) or not isinstance(self.ba_start, (int, float))
-                                          or not 0.0 <= self.ba_start <= 1.0):  # fmt: skip
+            if not lo <= getattr(self, name) <= hi:  # of its type already (above)
+                raise UserError(f"--{name.replace('_', '-')} must be in {lo}..{hi}, got {getattr(self, name)!r}")
+        if self.ba_start is not None and not 0.0 <= self.ba_start <= 1.0:
             raise UserError(f"--ba-start must be in 0.0..1.0, got {self.ba_start!r}")
+        if self.plane_file is not None and Path(self.plane_file).exists() and not Path(self.plane_file).is_file():
+            raise UserError(f"--plane-file {self.plane_file} is not a file (it is read, or written after the estimate)")
         if self.grid_res is not None and (not self.grid_res or any(not 8 <= r <= 512 for r in self.grid_res)):
             raise UserError(f"--grid-res needs resolutions in 8..512, got {self.grid_res!r}")
         from flipviz.geometry.mirror import PRESETS, parse_plane

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Iterable
@@ -38,16 +39,22 @@ def train(cfg: TrainConfig, observers: Iterable[Observer] = (), resume_unfinishe
 
 
 def run_config(settings: dict) -> TrainConfig:
-    """A run's TrainConfig from its settings as saved (checkpoint["config"], metrics.json's "settings")."""
+    """A run's TrainConfig from its settings as saved (checkpoint["config"], metrics.json's "settings");
+    settings that are not a TrainConfig's (a crafted or damaged file) are one UserError line."""
+    if not isinstance(settings, dict):
+        raise UserError(f"the run's saved settings are a {type(settings).__name__}, not a table")
     names = {f.name for f in fields(TrainConfig)}
     kw = {k: v for k, v in settings.items() if k in names}
     kw.setdefault("unconfident_plane", "use")  # saved before the option existed: any plane was trained with
-    for k in ("data", "out", "rrd", "resume", "plane_file"):
-        if kw.get(k) is not None:
-            kw[k] = Path(kw[k])
-    if kw.get("grid_res") is not None:
-        kw["grid_res"] = tuple(kw["grid_res"])
-    return TrainConfig(**kw)
+    try:
+        for k in ("data", "out", "rrd", "resume", "plane_file"):
+            if kw.get(k) is not None:
+                kw[k] = Path(kw[k])
+        if kw.get("grid_res") is not None:
+            kw["grid_res"] = tuple(kw["grid_res"])
+        return TrainConfig(**kw)
+    except (TypeError, ValueError) as e:
+        raise UserError(f"the run's saved settings are damaged ({str(e).splitlines()[0][:120]})") from None
 
 
 def open_run(run: Path | str, device: str | None = None, scene: SceneData | None = None) -> Trainer:
@@ -58,8 +65,8 @@ def open_run(run: Path | str, device: str | None = None, scene: SceneData | None
         path = checkpoint_path(run)
     except FileNotFoundError:
         raise UserError(f"{run} is not a run folder with a checkpoint (bench runs keep theirs with --keep-checkpoints)") from None
-    cfg = run_config(load_checkpoint(path)["config"])
-    cfg = replace(cfg, resume=path, out=path.parent, device=device or cfg.device, no_rrd=True)
-    if cfg.data is not None and not Path(cfg.data).exists():
+    cfg = run_config(load_checkpoint(path).get("config"))
+    cfg = replace(cfg, resume=path, out=path.parent, device=device or cfg.device, no_rrd=True).validate()
+    if cfg.data is not None and not os.path.exists(cfg.data):  # False for a name the system refuses
         raise UserError(f"{path.parent} was trained on {cfg.data}, which is not found from here")
     return Trainer(cfg, scene, read_only=True)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from flipviz.data.dataset import SceneData
+from flipviz.data.dataset import SceneData, check_image_size
 from flipviz.data.protocol import Split, make_split
 from flipviz.data.selection import select_split
 from flipviz.errors import UserError
@@ -73,6 +73,7 @@ def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
 
 def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = None) -> RunSetup:
     """Everything a run trains with; `saved_estimate`: the plane.json of a run being resumed."""
+    check_image_size(*scene.resolution, f"the images of {scene.source or scene.name}")
     device = torch.device(cfg.device)
     spec = method_spec(cfg)
     split = run_split(cfg, scene)

@@ -29,7 +29,7 @@ from flipviz.data.builtin import true_depth
 from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
-from flipviz.files import FolderLock
+from flipviz.files import FolderLock, remove_leftover_temps
 from flipviz.geometry.coverage import coverage
 from flipviz.geometry.poses import pose_errors
 from flipviz.geometry.symmetry import PlaneEstimate, plane_error
@@ -94,6 +94,8 @@ class Trainer:
         self.opt_field = self.model.make_optimizer()
         self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
         self._lock_file = None if read_only else FolderLock(self.run_dir)  # the run folder, ours until run() ends
+        if not read_only and remove_leftover_temps(self.run_dir):
+            log.info("removed the temporary files of writes killed earlier in %s", self.run_dir)
         if self.plane_estimate is not None and not read_only:
             artifacts.write_plane(self.run_dir, self.plane_estimate)
         self.step = 0
@@ -321,7 +323,8 @@ class Trainer:
             try:
                 return ckpt.save_checkpoint(path, state)
             except OSError as e:
-                raise UserError(f"cannot write {path}: {e.strerror or e}; the last good checkpoint is kept") from None
+                kept = "the last good checkpoint is kept" if path.is_file() else "no checkpoint was written yet"
+                raise UserError(f"cannot write {path}: {e.strerror or e}; {kept}") from None
 
     def _load(self, path: Path | str) -> None:
         state = ckpt.load_checkpoint(path, map_location=self.model.device)
@@ -329,6 +332,8 @@ class Trainer:
         if not isinstance(theirs, dict):
             raise UserError(f"cannot resume: {path} is not a flipviz checkpoint (its config is not a table)")
         for key in ("method", "field", "scene", "config"):
+            if key in theirs and not isinstance(theirs[key], (str, int, type(None))):
+                raise UserError(f"cannot resume: {path} is not a flipviz checkpoint (its {key} is a {type(theirs[key]).__name__})")
             if key in theirs and theirs[key] != getattr(self.cfg, key) and not (key == "scene" and self.cfg.data):
                 raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {getattr(self.cfg, key)!r}")
         try:  # a crafted or foreign checkpoint fails in many ways below: each is one line

@@ -22,7 +22,7 @@ import rerun.blueprint as rrb
 import tyro
 
 from flipviz.errors import UserError
-from flipviz.files import atomic_path
+from flipviz.files import atomic_path, free_bytes, need_space
 from flipviz.viz.rerun_blueprint import STEP, entity_name
 
 APP_ID = "flipviz-compare"
@@ -120,14 +120,22 @@ def write_comparison(runs: list[Path], out: Path, grpc_url: str | None = None) -
         raise UserError(f"flipviz compare takes 2 to 4 runs, got {len(runs)}")
     chunks, labels, tests = merged_chunks(runs)
     blueprint = compare_blueprint(labels, tests)
-    with atomic_path(out) as tmp:
-        rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
-        sinks = [rr.FileSink(str(tmp))] + ([rr.GrpcSink(grpc_url)] if grpc_url else [])
-        rec.set_sinks(*sinks, default_blueprint=blueprint)
-        rec.send_recording_name(" vs ".join(labels))
-        rr.send_chunks(chunks, recording=rec)
-        rec.flush(timeout_sec=30.0)
-        rec.disconnect()
+    try:  # about the inputs' size: a full disk fails inside Rerun's writer, with no readable file
+        need_space(out, 1.1 * sum(f.stat().st_size for r in runs for f in recordings_of(Path(r))) + 8e6, str(out))
+        with atomic_path(out) as tmp:
+            rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
+            sinks = [rr.FileSink(str(tmp))] + ([rr.GrpcSink(grpc_url)] if grpc_url else [])
+            rec.set_sinks(*sinks, default_blueprint=blueprint)
+            rec.send_recording_name(" vs ".join(labels))
+            rr.send_chunks(chunks, recording=rec)
+            try:
+                rec.flush(timeout_sec=30.0)
+            finally:
+                rec.disconnect()
+    except RuntimeError as e:  # the file writer failed (the disk filled up meanwhile); no partial file is left
+        raise UserError(f"cannot write {out}: {str(e).splitlines()[0]} ({free_bytes(out) / 1e6:.0f} MB free on that disk)") from None
+    except OSError as e:
+        raise UserError(f"cannot write {out}: {e.strerror or e}") from None
     return Path(out), labels
 
 

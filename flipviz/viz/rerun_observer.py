@@ -9,6 +9,7 @@ every few seconds, so a killed run still leaves a readable recording; `on_end` f
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 import uuid
@@ -23,6 +24,7 @@ from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
+from flipviz.files import free_bytes
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent, split_label
 from flipviz.viz import palette
@@ -30,6 +32,7 @@ from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
 from flipviz.viz.rerun_viewer import RerunWebViewer
 
 APP_ID = "flipviz"
+log = logging.getLogger("flipviz.rerun")
 
 COLORS = palette.CAMERA  # the app's colours: the same thing looks the same in both
 
@@ -46,6 +49,7 @@ class RerunOptions:
     max_map_size: int = 128  # scalar maps (beta^2, depth, opacity, error) are strided down to this
     step_stride: int = 1  # log every n-th StepEvent (on top of cfg.log_every)
     flush_every_s: float = 2.0
+    min_free_mb: float = 32.0  # the recording stops (and stays readable) when its disk has less free
     # beta^2 colour range, fixed for the whole run so frames compare (raw values are stored unclipped).
     # Its floor is beta_min^2 = 0.01; at the NLL optimum beta^2 = ||C - C_hat||^2 (Sec. IV-C), and on the
     # chair most symmetry-breaking pixels stay below 0.1 (measured, step 700 at 48 px).
@@ -81,6 +85,7 @@ class RerunObserver(Observer):
         self._logged_gt: set[str] = set()
         self._sinks_ready = False
         self._closed = False
+        self._file_stopped = False  # the disk was nearly full: the file was finalised early
         self._frustum_scale = 0.3
         self._plane_size, self._plane_moves = 1.0, False  # set by the SetupEvent
         self._series_colors = [tuple(int(255 * c) for c in rgb[:3]) for rgb in matplotlib.colormaps["tab10"].colors]
@@ -107,6 +112,27 @@ class RerunObserver(Observer):
             except Exception:  # a slow disk or viewer must not stop training
                 pass
             self._last_flush = time.monotonic()
+            self._stop_file_before_the_disk_fills()
+
+    def _stop_file_before_the_disk_fills(self) -> None:
+        """A full disk cuts Rerun's file writer mid-chunk, leaving a file no reader scans. So below
+        `min_free_mb` the file is finalised (footer written, readable) and recording to it stops;
+        a served viewer goes on receiving."""
+        path = self.opts.path
+        if path is None or self._file_stopped or free_bytes(path) >= self.opts.min_free_mb * 1e6:
+            return
+        self._file_stopped = True
+        if self.viewer is not None:
+            self.rec.set_sinks(rr.GrpcSink(self.viewer.grpc_url))  # the file sink is finalised and dropped
+        else:
+            self.rec.disconnect()  # finalises the file; nothing is logged after (see `_silent`)
+        log.warning("the recording %s stops here: its disk has less than %.0f MB free; what it holds stays readable",
+                    path, self.opts.min_free_mb)  # fmt: skip
+
+    @property
+    def _silent(self) -> bool:
+        """The file was finalised early (disk nearly full) and no viewer listens: nothing to log to."""
+        return self._file_stopped and self.viewer is None
 
     def _shrink(self, a: np.ndarray) -> np.ndarray:
         """Integer-stride a map down to at most max_map_size pixels a side (float16 storage)."""
@@ -226,6 +252,8 @@ class RerunObserver(Observer):
 
     def on_step(self, event: StepEvent) -> None:
         with self._lock:
+            if self._silent:
+                return
             self._n_step_events += 1
             if (self._n_step_events - 1) % self.opts.step_stride and event.step != event.total_steps:
                 return
@@ -261,6 +289,8 @@ class RerunObserver(Observer):
 
     def on_images(self, event: ImagesEvent) -> None:
         with self._lock:
+            if self._silent:
+                return
             rec = self.rec
             rec.set_time(STEP, sequence=event.step)
             for k, v in event.scalars.items():
@@ -286,6 +316,8 @@ class RerunObserver(Observer):
 
     def on_end(self, event: EndEvent) -> None:
         with self._lock:
+            if self._silent:
+                return
             rec = self.rec
             rec.set_time(STEP, sequence=event.step)
             rec.log("log", rr.TextLog(f"run {event.status} at step {event.step}. {event.message}".strip(),
@@ -305,6 +337,9 @@ class RerunObserver(Observer):
             return
         self._closed = True
         try:
+            if not self._sinks_ready and self.opts.path is not None:  # stopped in setup (e.g. the plane estimate)
+                self.rec.set_sinks(rr.FileSink(str(self.opts.path)))  # still a readable recording, not an empty file
+                self.rec.log("log", rr.TextLog("the run stopped during its setup, before training began", level="WARN"))
             self.rec.flush(timeout_sec=5.0)
             self.rec.disconnect()
         except Exception:

@@ -20,6 +20,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 import webbrowser
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -52,17 +53,23 @@ log = logging.getLogger("flipviz.app")
 
 
 class OneLineErrors(logging.Filter):
-    """A client's malformed websocket message closes that connection with one log line, not a traceback."""
+    """A client's malformed websocket message is one log line, not a traceback: undecodable bytes
+    close its connection (websockets' handler logs them), a message of the wrong shape fails in
+    viser's handler task (asyncio logs "Task exception was never retrieved")."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         if record.exc_info and record.exc_info[1] is not None:
             e = record.exc_info[1]
-            record.msg, record.args = f"{record.getMessage()}: {type(e).__name__}: {e}".splitlines()[0], ()
+            first = lambda text: (text.splitlines() or [""])[0]  # noqa: E731
+            record.msg, record.args = f"{first(record.getMessage())}: {type(e).__name__}: {first(str(e))}", ()
             record.exc_info, record.exc_text = None, None
         return True
 
 
-logging.getLogger("websockets.server").addFilter(OneLineErrors())
+for _name in ("websockets.server", "asyncio"):
+    logging.getLogger(_name).addFilter(OneLineErrors())
+warnings.filterwarnings("ignore", message=r"\[viser\] .* does not match annotation")  # a client's value of the wrong type
+warnings.filterwarnings("ignore", message=r"Queued a \w+ on a closed connection")  # a render for a client that just left
 
 
 @dataclass
@@ -102,6 +109,8 @@ def check_host(host: str, port: int) -> None:
     """The address can be served on (viser moves on to the next free port, but not to another host)."""
     import socket
 
+    if not 0 <= port <= 65535:
+        raise UserError(f"--port must be in 0..65535 (0: any free port), got {port}")
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as e:
