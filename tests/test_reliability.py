@@ -370,6 +370,14 @@ def test_unwritable_run_folder_and_recording_are_one_line(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------- 10: Ctrl-C on the bench
+def signal_and_wait(p: subprocess.Popen, send) -> tuple[str, float]:
+    """`send()` a signal, then wait for `p` to end: its stderr and how many seconds it took to stop."""
+    send()
+    t0 = time.monotonic()
+    _, err = p.communicate(timeout=120)
+    return err, time.monotonic() - t0
+
+
 def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
     out = tmp_path / "bench"
     cmd = [sys.executable, "-m", "flipviz.cli", "bench", "--scenes", "chair", "--methods", "bl,flip", "--configs", "1-3",
@@ -383,11 +391,8 @@ def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
             assert time.monotonic() < t_end and p.poll() is None, "the bench did not start a run"
             time.sleep(0.3)
         time.sleep(2.0)
-        os.killpg(p.pid, signal.SIGINT)  # as a terminal sends Ctrl-C: to the whole process group
-        t0 = time.monotonic()
         interrupted_at = time.time()
-        _, err = p.communicate(timeout=120)
-        stopped_in = time.monotonic() - t0
+        err, stopped_in = signal_and_wait(p, lambda: os.killpg(p.pid, signal.SIGINT))  # as a terminal sends Ctrl-C
     finally:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
@@ -422,17 +427,13 @@ def test_a_sigterm_stops_a_two_worker_bench_with_an_idle_worker_within_seconds(t
         t_end = time.monotonic() + 300
         chair = broken = None
         while not (chair and broken and (chair / "checkpoint.pt").is_file()):  # training, with a first checkpoint
-            assert time.monotonic() < t_end and p.poll() is None, ("the bench did not get going", p.poll(), p.stderr.read() if p.poll() is not None else "")
+            assert time.monotonic() < t_end and p.poll() is None, "the bench did not get going"
             chair = next(iter(out.glob("runs/chair-*")), None)
             broken = next(iter(out.glob("runs/broken-*/result.json")), None)
             time.sleep(0.2)
-        if target == "group":
-            os.killpg(p.pid, signal.SIGTERM)
-        else:
-            os.kill(json.loads((chair / "started.json").read_text())["pid"], signal.SIGTERM)
-        t0 = time.monotonic()
-        _, err = p.communicate(timeout=120)
-        stopped_in = time.monotonic() - t0
+        worker = json.loads((chair / "started.json").read_text())["pid"]
+        send = (lambda: os.killpg(p.pid, signal.SIGTERM)) if target == "group" else (lambda: os.kill(worker, signal.SIGTERM))
+        err, stopped_in = signal_and_wait(p, send)
     finally:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)

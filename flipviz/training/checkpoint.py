@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import errno
 import pickle
+from collections.abc import Iterator
 from pathlib import Path
 
 import torch
@@ -48,15 +49,21 @@ def save_checkpoint(path: Path, state: dict) -> Path:
     return Path(path)
 
 
+def tensors(state) -> Iterator[torch.Tensor]:
+    """Every tensor in a (nested) state: dicts, lists and tuples are walked."""
+    if isinstance(state, torch.Tensor):
+        yield state
+    elif isinstance(state, dict):
+        for v in state.values():
+            yield from tensors(v)
+    elif isinstance(state, (list, tuple)):
+        for v in state:
+            yield from tensors(v)
+
+
 def state_bytes(state) -> int:
     """The bytes of the tensors in a (nested) state: about a checkpoint's size on disk."""
-    if isinstance(state, torch.Tensor):
-        return state.numel() * state.element_size()
-    if isinstance(state, dict):
-        return sum(state_bytes(v) for v in state.values())
-    if isinstance(state, (list, tuple)):
-        return sum(state_bytes(v) for v in state)
-    return 0
+    return sum(t.numel() * t.element_size() for t in tensors(state))
 
 
 def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") -> dict:
@@ -81,14 +88,4 @@ def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") 
 
 def state_is_finite(state_dict: dict) -> bool:
     """True when every floating tensor in a (possibly nested) state dict is finite."""
-
-    def ok(v) -> bool:
-        if isinstance(v, torch.Tensor):
-            return not v.is_floating_point() or bool(torch.isfinite(v).all())
-        if isinstance(v, dict):
-            return all(ok(x) for x in v.values())
-        if isinstance(v, (list, tuple)):
-            return all(ok(x) for x in v)
-        return True
-
-    return ok(state_dict)
+    return all(not t.is_floating_point() or bool(torch.isfinite(t).all()) for t in tensors(state_dict))
