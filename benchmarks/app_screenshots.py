@@ -27,7 +27,7 @@ import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
-from browser import chromium, wait_until  # noqa: E402
+from browser import chromium, screenshot_png, wait_until  # noqa: E402
 from test_browser import button, checkbox, choose, tab  # noqa: E402
 
 from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
@@ -88,7 +88,7 @@ def capture_shot(args: Args) -> None:
             folder = d.find_elements("xpath", "//*[normalize-space(text())='Estimated plane']")
             d.execute_script("arguments[0].scrollIntoView({block: 'start'});", folder[0])
             time.sleep(3.0)
-            d.save_screenshot(str(args.out / "app_capture.png"))
+            (args.out / "app_capture.png").write_bytes(screenshot_png(d))
     finally:
         app.stop()
 
@@ -119,7 +119,7 @@ def compare_shot(args: Args) -> None:
             button(d, "Load run B")
             wait_until(lambda: app.compare.b is not None and app.compare.scores, 120, what="run B and its scores")
             time.sleep(20.0)  # the finest pass renders A and B
-            d.save_screenshot(str(args.out / "app_compare.png"))
+            (args.out / "app_compare.png").write_bytes(screenshot_png(d))
     finally:
         app.stop()
 
@@ -141,7 +141,7 @@ def plane_shot(args: Args) -> None:
             checkbox(d, "Show plane preview", False)
             wait_until(lambda: "Refined plane" in app.mirror.refine_text.content, 60, what="the refined plane")
             time.sleep(4.0)
-            d.save_screenshot(str(args.out / "app_plane.png"))
+            (args.out / "app_plane.png").write_bytes(screenshot_png(d))
     finally:
         app.stop()
 
@@ -153,13 +153,13 @@ def orbit_shots(args: Args) -> None:
         wait_until(lambda: app.step >= args.steps_before, 600, what="training")
         with chromium() as d:
             open_page(d, app.port, settle_s=6.0)
-            d.save_screenshot(str(args.out / "app.png"))
+            (args.out / "app.png").write_bytes(screenshot_png(d))
             snap_to(d, app, "test 3")
             tab(d, "Train")
             for v in app.views.clients.values():
                 v.gui["blend"].value = 0.5
             time.sleep(4.0)
-            d.save_screenshot(str(args.out / "app_snapped.png"))
+            (args.out / "app_snapped.png").write_bytes(screenshot_png(d))
             choose(d, "Scene", "mug")
             button(d, "Restart training")
             wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before, 600,
@@ -171,7 +171,7 @@ def orbit_shots(args: Args) -> None:
             button(d, "Score mirrors")
             wait_until(lambda: any("now" in k for k in app.mirror.scores), 120, what="the scores")
             time.sleep(3.0)
-            d.save_screenshot(str(args.out / "app_mirror.png"))
+            (args.out / "app_mirror.png").write_bytes(screenshot_png(d))
     finally:
         app.stop()
 

@@ -51,21 +51,24 @@ def _run_train(cfg: TrainConfig) -> int:
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     from flipviz.training.progress import ProgressObserver
-    from flipviz.training.run import train
+    from flipviz.training.run import make_trainer
     from flipviz.training.trainer import default_run_dir
 
     logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
     cfg.validate()
     if cfg.out is None:
         cfg.out = default_run_dir(cfg)
+    trainer = make_trainer(cfg)  # inputs checked and the run folder locked before anything is written
+    trainer.add_observer(ProgressObserver())
     rerun = None
-    if not cfg.no_rrd or cfg.rerun_serve:
-        from flipviz.viz.rerun_observer import make_rerun_observer
-
-        rerun = make_rerun_observer(cfg, cfg.out)
     try:
+        if not cfg.no_rrd or cfg.rerun_serve:
+            from flipviz.viz.rerun_observer import make_rerun_observer
+
+            rerun = make_rerun_observer(cfg, cfg.out)
+            trainer.add_observer(rerun)
         with logging_redirect_tqdm():  # a warning during training is a line of its own above the bar
-            _, metrics = train(cfg, [ProgressObserver()] + ([rerun] if rerun else []))
+            metrics = trainer.run()  # Ctrl-C inside the loop ends it with status "stopped"
         print(f"[flipviz] run folder: {cfg.out}")
         if "psnr" in metrics:
             lp = metrics.get("lpips")
@@ -94,7 +97,8 @@ def _run_train(cfg: TrainConfig) -> int:
             print(f"[flipviz] recording: rerun {rerun.opts.path}")
         if rerun is not None and cfg.rerun_serve:
             _serve_until_interrupted(rerun.viewer_url)
-    finally:  # also on Ctrl-C during setup: finalise whatever the recording already holds
+    finally:  # also on Ctrl-C before the loop: the folder is free again, the recording readable
+        trainer.close()
         if rerun is not None:
             rerun.close()
     return 0 if metrics.get("status", "finished") in ("finished", "stopped") else 1

@@ -34,6 +34,21 @@ def atomic_path(path: Path | str) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+@contextmanager
+def cannot_write(path: Path | str, what: str) -> Iterator[None]:
+    """An OSError inside the block (a full disk, a read-only folder) is one UserError line naming
+    `what` and `path`; atomic_path inside has already kept any earlier file."""
+    try:
+        yield
+    except OSError as e:
+        left = free_bytes(path)
+        free = f" ({left / 1e6:.0f} MB free there)" if e.errno == errno.ENOSPC or left < LOW_SPACE else ""
+        raise UserError(f"cannot write {what} {path}: {e.strerror or e}{free}") from None
+
+
+LOW_SPACE = 64e6  # bytes: a write error with less free than this names the free space
+
+
 def free_bytes(path: Path | str) -> int:
     """Free space on the disk that holds `path` (or its nearest existing parent)."""
     p = Path(path)
@@ -93,30 +108,64 @@ class FolderLock:
 
     NAME = ".flipviz.lock"
 
-    def __init__(self, folder: Path | str) -> None:
-        import fcntl
-
+    def __init__(self, folder: Path | str, what: str = "run folder") -> None:
         self.path = Path(folder) / self.NAME
+        self._made_folder = not self.path.parent.exists()
         try:  # creating the folder and its lock file is the first write: say plainly when it fails
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._f = open(self.path, "a+")
         except OSError as e:
-            raise UserError(f"cannot write the run folder {self.path.parent}: {e.strerror or e}") from None
-        try:
-            fcntl.flock(self._f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            self._f.seek(0)
-            holder = self._f.read().strip() or "another process"
+            raise UserError(f"cannot write the {what} {self.path.parent}: {e.strerror or e}") from None
+        holder = _flock_or_holder(self._f)
+        if holder is not None:
             self._f.close()
-            raise UserError(f"run folder {self.path.parent} is in use by {holder}; choose another --out") from None
+            raise UserError(f"{what} {self.path.parent} is in use by {holder}; choose another --out")
         self._f.seek(0)
         self._f.truncate()
         self._f.write(f"flipviz pid {os.getpid()}")
         self._f.flush()
 
+    @classmethod
+    def holder(cls, folder: Path | str) -> str | None:
+        """Who holds `folder`'s lock ("flipviz pid N"), or None when no live process does."""
+        try:
+            with open(Path(folder) / cls.NAME, "r+") as f:
+                return _flock_or_holder(f)  # taken for a moment only: closing the file drops it
+        except OSError:  # no lock file (or unreadable): not a run folder in use
+            return None
+
     def release(self) -> None:
         if not self._f.closed:
             self._f.close()  # closing drops the flock
+
+    def abandon(self) -> None:
+        """Release the folder, and remove it again when this lock created it and nothing else was
+        written there: a run refused during its setup leaves no empty run folder behind."""
+        self.release()
+        if self._made_folder and [p.name for p in self.path.parent.iterdir()] == [self.NAME]:
+            self.path.unlink(missing_ok=True)
+            self.path.parent.rmdir()
+
+
+def _flock_or_holder(f) -> str | None:
+    """Take an exclusive lock on the open file `f`: None when it is ours, else who holds it."""
+    import fcntl
+
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return None
+    except OSError:
+        f.seek(0)
+        return f.read().strip() or "another process"
+
+
+def next_free(path: Path | str) -> Path:
+    """`path` when nothing is there yet, else the first free `stem.N.suffix` beside it: a write that
+    must never replace an earlier file (a recording of another run, a resumed run's first one)."""
+    path = Path(path)
+    if not path.exists():
+        return path
+    return next(p for n in range(1, 1_000_000) if not (p := path.with_name(f"{path.stem}.{n}{path.suffix}")).exists())
 
 
 @contextmanager

@@ -60,3 +60,18 @@ def wait_until(cond, timeout: float = 60.0, every: float = 0.25, what: str = "co
             return v
         time.sleep(every)
     raise TimeoutError(f"timed out waiting for {what}")
+
+
+def screenshot_png(driver, timeout: float = 300.0) -> bytes:
+    """The page as PNG bytes. Chromedriver gives the renderer a fixed 10 s per capture; a software-GL
+    canvas on a busy machine can take longer, so a capture that timed out is asked for again."""
+    from selenium.common.exceptions import TimeoutException
+
+    def attempt() -> bytes | None:
+        try:
+            return driver.get_screenshot_as_png()
+        except TimeoutException:
+            return None
+
+    return wait_until(attempt, timeout, every=1.0, what="a screenshot")
+

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import chromium, chromium_available, wait_until
+from browser import chromium, chromium_available, screenshot_png, wait_until
 
 from flipviz.viz import palette
 from flipviz.viz.viser_app import App, AppConfig
@@ -50,7 +50,7 @@ def shot(d, name: str) -> np.ndarray:
     """A screenshot as RGB (H, W, 3), saved under $FLIPVIZ_SHOTS when set."""
     from PIL import Image
 
-    png = d.get_screenshot_as_png()
+    png = screenshot_png(d)
     if os.environ.get("FLIPVIZ_SHOTS"):
         Path(os.environ["FLIPVIZ_SHOTS"]).mkdir(parents=True, exist_ok=True)
         (Path(os.environ["FLIPVIZ_SHOTS"]) / f"{name}.png").write_bytes(png)

@@ -76,6 +76,43 @@ def test_an_interrupt_inside_the_save_keeps_the_checkpoint(tmp_path):
     assert not [p for p in (tmp_path / "run").iterdir() if ".tmp" in p.name]
 
 
+UPSAMPLE_CHILD = textwrap.dedent("""
+    import os, signal, sys
+    from flipviz import cli
+    from flipviz.model import grid_field
+    real_upsample, real_interpolate = grid_field.GridField.upsample, grid_field.F.interpolate
+    def upsample(self, res):  # Ctrl-C lands after the density grid is upsampled, before the colour grid
+        calls = []
+        def interpolate(*a, **k):
+            calls.append(1)
+            if len(calls) == 2:
+                os.kill(os.getpid(), signal.SIGINT)
+            return real_interpolate(*a, **k)
+        grid_field.F.interpolate = interpolate
+        try:
+            return real_upsample(self, res)
+        finally:
+            grid_field.F.interpolate = real_interpolate
+    grid_field.GridField.upsample = upsample
+    sys.exit(cli.main(["train", *sys.argv[1:]]))
+""")
+
+
+def test_an_interrupt_inside_the_grid_upsample_leaves_a_run_that_resumes(tmp_path):
+    out = tmp_path / "run"
+    args = ["--scene", "chair", "--mirror-plane", "official", "--res", "24", "--batch-rays", "256", "--n-samples", "32",
+            "--grid-res", "16", "24", "--steps", "8", "--images-every", "0", "--out", str(out)]  # upsample at step 2  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", UPSAMPLE_CHILD, *args], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 128 + signal.SIGINT and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert json.loads((out / "metrics.json").read_text())["psnr"] > 0  # the evaluation on stop worked
+    model = load_checkpoint(out)["model"]
+    grids = [tuple(model[k].shape[:3]) for k in ("field.density_grid", "field.feat_grid", "field.occ")]
+    assert len(set(grids)) == 1 and max(grids[0]) == 24, grids  # upsampled whole
+    done = flipviz("train", *args, "--resume", str(out))
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert load_checkpoint(out)["step"] == 8
+
+
 # ------------------------------------------------------------------------- 2: SIGTERM / SIGHUP
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig):
@@ -134,7 +171,7 @@ def test_a_second_run_on_the_same_folder_is_refused(tmp_path):
         Trainer(TrainConfig(**TINY, out=tmp_path / "run"))
     first.cfg.steps = 2
     first.run()  # the folder is free again once the run ends
-    Trainer(TrainConfig(**TINY, out=tmp_path / "run"))
+    Trainer(TrainConfig(**TINY, out=tmp_path / "run", resume=tmp_path / "run"))
 
 
 def test_a_run_removes_the_temporary_files_of_killed_saves_in_its_folder(tmp_path):
@@ -221,23 +258,90 @@ def test_compare_onto_a_full_disk_is_one_line(tmp_path):
     assert len(err.splitlines()) == 1 and "cannot write" in err and "MB are free on that disk" in err, err
 
 
-def test_an_interrupt_during_the_plane_estimate_leaves_a_readable_recording(tmp_path, monkeypatch, capsys):
-    """Ctrl-C while the plane is estimated (before training, before the recording had its sinks): the
-    .rrd is a readable recording saying so, not an empty file no reader scans."""
+def test_video_and_report_onto_a_full_disk_are_one_line_and_keep_the_earlier_files(tmp_path):
+    """With 16 KB left, ffmpeg leaves a file it cannot open and imageio raises nothing: the video is
+    decoded back before it replaces the earlier one."""
+    run = tmp_path / "run"
+    assert cli.main(["train", "--scene", "chair", "--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32",
+                     "--grid-res", "24", "--mirror-plane", "official", "--no-rrd", "--out", str(run)]) == 0  # fmt: skip
+    script = textwrap.dedent(f"""
+        V="$PY -m flipviz.cli video {run} --frames 8 --res 32 --out $D/v.mp4"
+        $V > /dev/null 2>&1 || echo "first video failed"
+        echo good > $D/r.html
+        md5sum $D/v.mp4 $D/r.html > $D/../before.md5
+        head -c 16K /dev/zero > $D/spacer; cat /dev/zero > $D/filler 2> /dev/null; rm $D/spacer  # 16 KB left:
+        $V --frames 60 > /dev/null 2> $D/../video_err.txt; echo "video rc=$?"
+        $PY -m flipviz.cli report {run} --res 32 --gif-frames 4 --out $D/r.html > /dev/null 2> $D/../report_err.txt
+        echo "report rc=$?"
+        md5sum -c $D/../before.md5 | sed 's/^/kept: /'
+        ls -A $D | sed 's/^/left: /'
+    """)
+    r = in_small_filesystem(tmp_path, 1, script)
+    out = r.stdout
+    assert "first video failed" not in out and "video rc=2" in out and "report rc=2" in out, out + r.stderr
+    assert out.count("kept: ") == 2 and out.count(": OK") == 2, out  # the earlier video and page are untouched
+    assert sorted(ln[6:] for ln in out.splitlines() if ln.startswith("left: ")) == ["filler", "r.html", "v.mp4"], out
+    for name, says in (("video_err.txt", "cannot write the video"), ("report_err.txt", "cannot write the report")):
+        err = (tmp_path / name).read_text()
+        lines = [ln for ln in err.splitlines() if ln.startswith("flipviz: error")]
+        assert len(lines) == 1 and says in lines[0] and "MB free there" in lines[0] and "Traceback" not in err, err
+        assert len(lines[0]) < 400 and err.count("\n[") == 0, err  # no command line, no ffmpeg log
+
+
+def test_an_interrupt_or_refusal_during_setup_leaves_nothing_behind(tmp_path, monkeypatch, capsys):
+    """Ctrl-C while the plane is estimated, a bad --inputs, a refused --resume: no run folder, no
+    empty recording that no reader opens, nothing beside an earlier run's files."""
     from flipviz.training import plane_estimate
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(plane_estimate, "estimate_plane", interrupted)
-    code = cli.main(["train", "--scene", "chair", "--res", "24", "--steps", "5", "--mirror-plane", "auto",
-                     "--out", str(tmp_path / "run")])  # fmt: skip
+    tiny = ["--scene", "chair", "--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24"]
+    with monkeypatch.context() as m:
+        m.setattr(plane_estimate, "estimate_plane", interrupted)
+        code = cli.main(["train", *tiny, "--mirror-plane", "auto", "--out", str(tmp_path / "run")])
     assert code == 130 and capsys.readouterr().err.strip() == "flipviz: interrupted (SIGINT)"
-    logged = read_rrd(tmp_path / "run" / "recording.rrd")
-    assert "during its setup" in str(logged["/log"])
+    assert cli.main(["train", *tiny, "--inputs", "999", "--out", str(tmp_path / "bad")]) == 2
+    assert not (tmp_path / "run").exists() and not (tmp_path / "bad").exists()
+    done = tmp_path / "done"
+    assert cli.main(["train", *tiny, "--mirror-plane", "official", "--out", str(done)]) == 0
+    before = sorted(p.name for p in done.iterdir())
+    assert cli.main(["train", *tiny, "--mirror-plane", "official", "--method", "bl", "--resume", str(done), "--out", str(done)]) == 2
+    assert "cannot resume" in capsys.readouterr().err and sorted(p.name for p in done.iterdir()) == before
 
 
-# ------------------------------------------------------------------------- 6: poses that are not rotations
+def test_training_over_an_earlier_run_is_refused_unless_overwrite(tmp_path, capsys):
+    out, tiny = tmp_path / "run", ["--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24"]
+    assert cli.main(["train", "--scene", "chair", *tiny, "--mirror-plane", "official", "--out", str(out)]) == 0
+    kept = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    capsys.readouterr()
+    assert cli.main(["train", "--scene", "mug", *tiny, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "holds an earlier run" in err and "--overwrite" in err, err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == kept  # untouched
+    assert cli.main(["train", "--scene", "mug", *tiny, "--out", str(out), "--overwrite"]) == 0
+    assert json.loads((out / "metrics.json").read_text())["scene"] == "mug"
+    assert sorted(p.name for p in out.glob("*.rrd")) == ["recording.rrd"]  # the chair's recording went with its run
+    assert (out / "recording.rrd").read_bytes() != kept["recording.rrd"] and read_rrd(out / "recording.rrd")
+
+
+def test_a_recording_never_lands_in_a_run_folder_in_training_or_over_a_file(tmp_path, capsys):
+    from flipviz.files import FolderLock
+
+    tiny = ["--scene", "chair", "--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
+            "--mirror-plane", "official"]  # fmt: skip
+    a = tmp_path / "a"
+    lock = FolderLock(a)  # run A trains there
+    (a / "recording.rrd").write_bytes(b"run A's recording")
+    assert cli.main(["train", *tiny, "--out", str(tmp_path / "b"), "--rrd", str(a / "recording.rrd")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "which flipviz pid" in err and "choose another --rrd" in err, err
+    assert not (tmp_path / "b").exists() and (a / "recording.rrd").read_bytes() == b"run A's recording"
+    lock.release()  # A ended: B's recording goes beside A's, never over it
+    assert cli.main(["train", *tiny, "--out", str(tmp_path / "b"), "--rrd", str(a / "recording.rrd")]) == 0
+    assert (a / "recording.rrd").read_bytes() == b"run A's recording"
+    assert read_rrd(a / "recording.1.rrd")["/curves/train/loss"]
+
 def test_a_zero_transform_matrix_is_refused(tmp_path):
     from flipviz.data.blender import load_blender
 
@@ -378,7 +482,7 @@ def signal_and_wait(p: subprocess.Popen, send) -> tuple[str, float]:
     return err, time.monotonic() - t0
 
 
-def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
+def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes_and_a_second_bench_is_refused(tmp_path):
     out = tmp_path / "bench"
     cmd = [sys.executable, "-m", "flipviz.cli", "bench", "--scenes", "chair", "--methods", "bl,flip", "--configs", "1-3",
            "--res", "24", "--steps", "400", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
@@ -390,7 +494,8 @@ def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes(tmp_path):
         while not list(out.glob("runs/*/started.json")):
             assert time.monotonic() < t_end and p.poll() is None, "the bench did not start a run"
             time.sleep(0.3)
-        time.sleep(2.0)
+        second = one_line_error(subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300))
+        assert "bench folder" in second and f"is in use by flipviz pid {p.pid}" in second, second  # two benches, one --out
         interrupted_at = time.time()
         err, stopped_in = signal_and_wait(p, lambda: os.killpg(p.pid, signal.SIGINT))  # as a terminal sends Ctrl-C
     finally:
@@ -476,14 +581,13 @@ def wait_served(p: subprocess.Popen) -> str:
 
 
 def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
-    p = start_app(tmp_path)
+    p = start_app(tmp_path, "--checkpoint-every", "5")
     try:
         wait_served(p)
-        t_end = time.monotonic() + 180
-        while not (tmp_path / "app" / ".flipviz.lock").exists():  # the trainer is built (its scene loaded)
+        t_end = time.monotonic() + 300
+        while not (tmp_path / "app" / "checkpoint.pt").exists():  # training runs (its first periodic checkpoint)
             assert time.monotonic() < t_end and p.poll() is None, "training did not start"
             time.sleep(0.2)
-        time.sleep(3.0)  # training runs
         p.send_signal(signal.SIGINT)
         time.sleep(0.05)
         p.send_signal(signal.SIGINT)  # impatient

@@ -27,7 +27,7 @@ from flipviz.data import load_scene
 from flipviz.data.dataset import DatasetError
 from flipviz.data.scenes import SCENES
 from flipviz.errors import UserError
-from flipviz.files import write_json
+from flipviz.files import FolderLock, write_json
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
 
@@ -156,10 +156,19 @@ def log(msg: str, logfile: Path | None = None) -> None:
 
 
 def run_bench(cfg: BenchConfig) -> Path:
-    """Run (or resume) the bench and write results.csv/json, table.md and the figures in cfg.out."""
+    """Run (or resume) the bench and write results.csv/json, table.md and the figures in cfg.out;
+    one bench at a time per folder (a second one is refused in one line)."""
+    out = Path(cfg.out).expanduser().resolve()
+    lock = FolderLock(out, "bench folder")
+    try:
+        return _run_bench_locked(cfg, out)
+    finally:
+        lock.release()
+
+
+def _run_bench_locked(cfg: BenchConfig, out: Path) -> Path:
     from tqdm import tqdm
 
-    out = Path(cfg.out).expanduser().resolve()
     if cfg.report_only:
         rows = [r for p in sorted((out / "runs").glob("*/" + RESULT_FILE)) if (r := read_result(p.parent))]
         if not rows:

@@ -10,16 +10,45 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
 
 from flipviz.data.cameras import Camera
 from flipviz.data.images import save_png
-from flipviz.files import write_json
+from flipviz.errors import UserError
+from flipviz.files import FolderLock, write_json
 from flipviz.geometry.symmetry import PlaneEstimate
+from flipviz.training.checkpoint import CHECKPOINT_NAME
+from flipviz.training.config import TrainConfig
 
-PLANE_FILE = "plane.json"
+PLANE_FILE, METRICS_FILE = "plane.json", "metrics.json"
+RUN_FILES = (CHECKPOINT_NAME, METRICS_FILE, "transforms.json", PLANE_FILE, "test_renders", "mirrored", "recording*.rrd")
+
+
+def holds_run(run_dir: Path) -> bool:
+    """A folder where a run has trained (its checkpoint) or ended (its metrics)."""
+    return (run_dir / CHECKPOINT_NAME).is_file() or (run_dir / METRICS_FILE).is_file()
+
+
+def refuse_to_overwrite(run_dir: Path, cfg: TrainConfig) -> None:
+    """One UserError line instead of a silent overwrite: a fresh run (no --resume) over an earlier
+    run without --overwrite, or a --rrd in the folder of a run that another process trains."""
+    if cfg.resume is None and not cfg.overwrite and holds_run(run_dir):
+        raise UserError(f"{run_dir} holds an earlier run; continue it with --resume {run_dir}, "
+                        "replace it with --overwrite, or choose another --out")  # fmt: skip
+    rrd = None if cfg.no_rrd or cfg.rrd is None else Path(cfg.rrd)
+    if rrd is not None and rrd.parent.resolve() != run_dir.resolve() and (holder := FolderLock.holder(rrd.parent)):
+        raise UserError(f"the recording {rrd} would go into the run folder {rrd.parent}, which {holder} is training; "
+                        "choose another --rrd")  # fmt: skip
+
+
+def remove_run(run_dir: Path) -> None:
+    """Delete what an earlier run wrote in `run_dir` (--overwrite), and nothing else there."""
+    for pattern in RUN_FILES:
+        for p in run_dir.glob(pattern):
+            shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink(missing_ok=True)
 
 
 def write_test_renders(run_dir: Path, names: list[str], preds: list[np.ndarray], gts: list[np.ndarray]) -> None:
@@ -29,7 +58,7 @@ def write_test_renders(run_dir: Path, names: list[str], preds: list[np.ndarray],
 
 
 def write_metrics(run_dir: Path, metrics: dict) -> Path:
-    return write_json(run_dir / "metrics.json", metrics)
+    return write_json(run_dir / METRICS_FILE, metrics)
 
 
 def write_transforms(run_dir: Path, cameras: list[Camera], images: list[np.ndarray], image_dir: str = "mirrored") -> Path:

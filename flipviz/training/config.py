@@ -154,6 +154,9 @@ class TrainConfig:
     """Also stream to a local Rerun web viewer (bound to 127.0.0.1) and print its URL."""
     resume: Path | None = None
     """Resume from a checkpoint file (or a run folder holding checkpoint.pt)."""
+    overwrite: bool = False
+    """Train afresh into an --out that holds an earlier run, deleting its checkpoint, metrics,
+    renders and recordings first (without it, such a folder is refused unless --resume)."""
     uncertainty_start: float = 0.2
     """Fraction of the steps trained with plain MSE before the uncertainty loss starts (paper: 10k of 50k)."""
     density_weight: float = 0.01

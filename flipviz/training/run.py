@@ -19,15 +19,18 @@ log = logging.getLogger("flipviz.training")
 
 
 def make_trainer(cfg: TrainConfig, scene: SceneData | None = None, resume_unfinished: bool = False) -> Trainer:
-    """A Trainer for `cfg`. With `resume_unfinished`, a run folder that already holds a checkpoint
-    (a run that was killed) resumes from it; an unreadable checkpoint starts over."""
+    """A Trainer for `cfg`. With `resume_unfinished` (the bench, whose run folders are its own), a
+    run folder that already holds a checkpoint (a run that was killed) resumes from it, and any other
+    (an unreadable checkpoint, a failed run's leftovers) starts over in place."""
+    if not resume_unfinished or cfg.resume is not None:
+        return Trainer(cfg, scene)
     ckpt = Path(cfg.out) / CHECKPOINT_NAME if cfg.out is not None else None
-    if resume_unfinished and cfg.resume is None and ckpt is not None and ckpt.is_file():
+    if ckpt is not None and ckpt.is_file():
         try:
             return Trainer(replace(cfg, resume=ckpt), scene)
         except Exception as e:
             log.warning("cannot resume from %s (%s: %s); starting over", ckpt, type(e).__name__, e)
-    return Trainer(cfg, scene)
+    return Trainer(replace(cfg, overwrite=True), scene)
 
 
 def train(cfg: TrainConfig, observers: Iterable[Observer] = (), resume_unfinished: bool = False) -> tuple[Trainer, dict]:

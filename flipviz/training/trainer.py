@@ -29,7 +29,7 @@ from flipviz.data.builtin import true_depth
 from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
-from flipviz.files import FolderLock, remove_leftover_temps
+from flipviz.files import FolderLock, remove_leftover_temps, signals_deferred
 from flipviz.geometry.coverage import coverage
 from flipviz.geometry.poses import pose_errors
 from flipviz.geometry.symmetry import PlaneEstimate, plane_error
@@ -81,6 +81,20 @@ class Trainer:
         nor written, and `run()` refuses."""
         self.cfg = cfg.validate()
         self.read_only = read_only
+        self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
+        self._lock_file = None if read_only else FolderLock(self.run_dir)  # the run folder, ours until run() ends
+        try:
+            self._set_up(scene)
+        except BaseException:  # refused or interrupted during setup: no run folder is left behind empty
+            if self._lock_file is not None:
+                self._lock_file.abandon()
+            raise
+        self.setup_event = self._make_setup_event()
+
+    def _set_up(self, scene: SceneData | None) -> None:
+        cfg = self.cfg
+        if not self.read_only:
+            self._take_over_folder()
         keep_freed_memory()  # a step's large temporaries reuse the last step's memory (runtime.py)
         torch.manual_seed(cfg.seed)
         self._gen = torch.Generator().manual_seed(cfg.seed)
@@ -92,11 +106,7 @@ class Trainer:
         self.plane_estimate = rs.estimate
         self.model, self.flip = rs.model, rs.flip
         self.opt_field = self.model.make_optimizer()
-        self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
-        self._lock_file = None if read_only else FolderLock(self.run_dir)  # the run folder, ours until run() ends
-        if not read_only and remove_leftover_temps(self.run_dir):
-            log.info("removed the temporary files of writes killed earlier in %s", self.run_dir)
-        if self.plane_estimate is not None and not read_only:
+        if self.plane_estimate is not None and not self.read_only:
             artifacts.write_plane(self.run_dir, self.plane_estimate)
         self.step = 0
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
@@ -107,7 +117,15 @@ class Trainer:
         self._stop = threading.Event()
         if cfg.resume is not None:
             self._load(cfg.resume)
-        self.setup_event = self._make_setup_event()
+
+    def _take_over_folder(self) -> None:
+        """Holding the run folder's lock: remove the temporary files of killed writes, and refuse to
+        overwrite an earlier run (unless --overwrite, which deletes it) or another run's recording."""
+        if remove_leftover_temps(self.run_dir):
+            log.info("removed the temporary files of writes killed earlier in %s", self.run_dir)
+        artifacts.refuse_to_overwrite(self.run_dir, self.cfg)
+        if self.cfg.resume is None and self.cfg.overwrite:
+            artifacts.remove_run(self.run_dir)
 
     # ------------------------------------------------------------------ public control API
     def add_observer(self, obs: Observer) -> None:
@@ -168,8 +186,9 @@ class Trainer:
     # ------------------------------------------------------------------ one step
     def _train_step(self) -> dict:
         cfg, bank = self.cfg, self.training.bank
-        if self.model.update_schedule(self.step, cfg.steps):  # grids upsampled: new parameters
-            self.opt_field = self.model.make_optimizer()
+        with signals_deferred():  # an interrupt never leaves half-upsampled grids or a stale optimiser
+            if self.model.update_schedule(self.step, cfg.steps):  # grids upsampled: new parameters
+                self.opt_field = self.model.make_optimizer()
         self.model.adjust_lr(self.opt_field, self.step, cfg.steps)
         idx = bank.sample(cfg.batch_rays, self._gen)  # (R,)
         view = bank.view[idx]

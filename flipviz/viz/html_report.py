@@ -26,7 +26,7 @@ import tyro
 from markdown_it import MarkdownIt
 
 from flipviz.data.images import to_uint8
-from flipviz.files import write_text
+from flipviz.files import cannot_write, write_text
 from flipviz.training.config import METHOD_LABELS
 from flipviz.viz import palette
 
@@ -232,4 +232,6 @@ def run_page(cfg: ReportConfig) -> str:
 
 def write_run_report(cfg: ReportConfig) -> Path:
     out = cfg.out or Path(cfg.run) / "report.html"
-    return write_text(out, run_page(cfg))
+    html = run_page(cfg)
+    with cannot_write(out, "the report"):
+        return write_text(out, html)

@@ -24,7 +24,7 @@ from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
-from flipviz.files import free_bytes
+from flipviz.files import free_bytes, next_free
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent, split_label
 from flipviz.viz import palette
@@ -353,14 +353,17 @@ class RerunObserver(Observer):
 
 
 def recording_path(cfg: TrainConfig, run_dir: Path) -> Path | None:
-    """Where a run records: cfg.rrd, else <run_dir>/recording.rrd; a resumed run never overwrites an
-    earlier recording but writes the next free recording.N.rrd beside it (open them together:
-    `rerun <run folder>/*.rrd`). A path that cannot be written is a one-line UserError."""
+    """Where a run records: cfg.rrd, else <run_dir>/recording.rrd. An earlier recording is never
+    replaced: the run writes the next free recording.N.rrd beside it (a resumed run's recordings
+    open together: `rerun <run folder>/*.rrd`; --overwrite deletes the earlier run's first).
+    A path that cannot be written is a one-line UserError (the Trainer refused one in the folder of
+    another run in training: artifacts.refuse_to_overwrite)."""
     if cfg.no_rrd:
         return None
     path = Path(cfg.rrd) if cfg.rrd is not None else Path(run_dir) / "recording.rrd"
-    if cfg.resume is not None and path.exists():
-        path = next(p for n in range(1, 10_000) if not (p := path.with_name(f"{path.stem}.{n}{path.suffix}")).exists())
+    if path.is_dir():
+        raise UserError(f"cannot write the recording {path}: it is a folder (name a .rrd file)")
+    path = next_free(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "ab"):

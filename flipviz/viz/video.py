@@ -11,6 +11,9 @@ camera; a dataset has it where a frame lands on one of its views (the unobserved
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Callable, Iterable, Iterator
@@ -25,7 +28,7 @@ from flipviz.data.cameras import Camera
 from flipviz.data.dataset import SceneData
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
-from flipviz.files import atomic_path
+from flipviz.files import atomic_path, cannot_write
 from flipviz.training.config import METHOD_LABELS
 from flipviz.training.evaluate import image_psnr
 from flipviz.training.events import SetupEvent
@@ -164,15 +167,39 @@ def render_frames(
 
 
 def write_mp4(path: Path, frames: Iterable[np.ndarray], fps: int) -> Path:
-    """H.264 MP4 through imageio-ffmpeg, frames written as they come; the file appears whole or not at all."""
+    """H.264 MP4 through imageio-ffmpeg, frames written as they come. The file appears whole or not at
+    all: it is decoded back before it replaces an earlier one (ffmpeg on a full disk leaves a file it
+    cannot open, and imageio raises nothing)."""
     import imageio.v2 as imageio
 
-    with atomic_path(path) as tmp:
-        with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8, macro_block_size=16,
-                                ffmpeg_log_level="error") as w:  # fmt: skip
-            for f in frames:
-                w.append_data(f)
+    with cannot_write(path, "the video"), atomic_path(path) as tmp:
+        try:
+            with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8, macro_block_size=16,
+                                    ffmpeg_log_level="quiet") as w:  # fmt: skip
+                n, shape = 0, None
+                for f in frames:
+                    w.append_data(f)
+                    n, shape = n + 1, f.shape
+        except OSError as e:  # imageio's message holds ffmpeg's whole command line
+            why = f" ({os.strerror(e.errno)})" if e.errno else ""
+            raise OSError(e.errno or errno.EIO, f"ffmpeg stopped writing{why}") from None
+        check_video(tmp, n, shape)
     return Path(path)
+
+
+def check_video(path: Path, frames: int, shape: tuple[int, ...] | None) -> None:
+    """An OSError unless `path` decodes to `frames` frames of `shape` (H, W, 3)."""
+    import imageio.v2 as imageio
+    from imageio_ffmpeg import count_frames_and_secs
+
+    try:
+        with imageio.get_reader(path, format="FFMPEG") as r:
+            first = r.get_data(0)
+        counted = count_frames_and_secs(str(path))[0]
+    except Exception as e:  # imageio and ffmpeg raise many kinds for a broken file
+        raise OSError(errno.EIO, f"the written video does not decode ({type(e).__name__}); is the disk full?") from None
+    if frames and (counted != frames or first.shape != shape):
+        raise OSError(errno.EIO, f"the written video has {counted} frames of {first.shape}, not {frames} of {shape}")
 
 
 class GifFrames:
@@ -204,7 +231,7 @@ class GifFrames:
 
     def write(self, path: Path, fps: float) -> Path:
         """The GIF, written whole or not at all."""
-        with atomic_path(path) as tmp:
+        with cannot_write(path, "the GIF"), atomic_path(path) as tmp:
             tmp.write_bytes(self.gif_bytes(fps))
         return Path(path)
 
@@ -222,9 +249,9 @@ def make_video(cfg: VideoConfig) -> tuple[Path, Path | None]:
     cameras = path_cameras(a.setup_event, cfg.path, cfg.frames, cfg.res)
     gt = GroundTruth.of_run(a)
     labels = [f"{METHOD_LABELS[r.cfg.method]} ({scene_label(r.cfg)}, {r.step} steps)" for r in runs]
-    frames = render_frames([(label, r.render) for label, r in zip(labels, runs)], cameras, gt)
     small = GifFrames(step=2 if len(cameras) > 40 else 1)
     name = "keyframes" if cfg.path not in ("orbit", "unobserved") else cfg.path
-    out = write_mp4(cfg.out or a.run_dir / f"video_{name}.mp4", small.keep(frames) if cfg.gif else frames, cfg.fps)
+    with contextlib.closing(render_frames([(label, r.render) for label, r in zip(labels, runs)], cameras, gt)) as frames:
+        out = write_mp4(cfg.out or a.run_dir / f"video_{name}.mp4", small.keep(frames) if cfg.gif else frames, cfg.fps)
     gif = small.write(cfg.gif, cfg.fps) if cfg.gif is not None else None
     return out, gif

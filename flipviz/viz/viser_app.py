@@ -32,7 +32,7 @@ from flipviz.data import SceneData, load_scene
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.errors import UserError
-from flipviz.files import inside_roots, signals_deferred
+from flipviz.files import inside_roots, next_free, signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.training.checkpoint import CHECKPOINT_NAME
@@ -133,6 +133,10 @@ def check_run_input(cfg: TrainConfig) -> SceneData:
         from flipviz.training.checkpoint import load_checkpoint
 
         load_checkpoint(cfg.resume)
+    if cfg.out is not None:
+        from flipviz.training.artifacts import refuse_to_overwrite
+
+        refuse_to_overwrite(Path(cfg.out), cfg)
     scene = load_scene(cfg.scene, cfg.data, cfg.res)
     inputs = run_split(cfg, scene).inputs
     if cfg.mirror_plane != "auto":  # auto is estimated when the run starts
@@ -383,7 +387,7 @@ class App(Observer):
             with self._ev_lock:
                 self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = None, None, None, None, None
                 self._hist_step, self._hist_psnr = [], []
-            out = None if self._base_out is None else Path(f"{self._base_out}-restart{self.restarts}")
+            out = None if self._base_out is None else next_free(f"{self._base_out}-restart{self.restarts}")
             self._start_run(replace(cfg, out=out, resume=None, rrd=None))
 
     def stop(self) -> None:

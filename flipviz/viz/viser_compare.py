@@ -193,7 +193,7 @@ class ComparePanel:
         if a_dir is None:
             self._say("_Run A has not started yet._")
             return
-        out = Path(f"{a_dir}-B-{method.replace('+', 'u')}")
+        out = next_free(f"{a_dir}-B-{method.replace('+', 'u')}")  # beside an earlier run B, never over it
         self._say(f"_Building run B ({method})..._")
 
         def build() -> None:
