@@ -53,6 +53,9 @@ class BenchConfig:
     """Initial mirrored poses: reflect (each camera reflected through the plane) | lookat (the paper's)."""
     refine_plane: bool = TrainConfig.refine_plane
     """Flip runs refine the mirror plane during training (TrainConfig.refine_plane)."""
+    preset: Literal["fast", "authors", "paper"] = TrainConfig.preset
+    """Every run's preset: fast (flipviz's setting) | authors (the official code's loss and rendering
+    choices on the grid; with --mirror-plane official, its x = 0) | paper (those on the paper's NeRF)."""
     seed: int = TrainConfig.seed
     """Seed of every run (each run is independent and seeded)."""
     device: str = TrainConfig.device

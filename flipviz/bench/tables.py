@@ -74,13 +74,13 @@ def _fmt(x, metric: str) -> str:
 def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
     """Markdown like the paper's Table III: per scene and method, mean over configurations."""
     names = scenes(rows)
-    head = ["Scene"] + [f"{m.upper()} {METHOD_LABELS[x]}" for m in METRICS for x in methods]
+    head = ["Scene", "white image"] + [f"{m.upper()} {METHOD_LABELS[x]}" for m in METRICS for x in methods]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     ours: dict[tuple, list] = {}
     papers: dict[tuple, list] = {}
     for scene in names:
         prow = paper_scene(rows, scene)
-        cells = [scene + (f" ({prow})" if prow and prow.lower() != scene.lower() else "")]
+        cells = [scene + (f" ({prow})" if prow and prow.lower() != scene.lower() else ""), blank_cell(rows, scene)]
         for metric in METRICS:
             for m in methods:
                 rs = main_rows(rows, scene, m)
@@ -97,7 +97,7 @@ def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
                 cells.append(cell)
         lines.append("| " + " | ".join(cells) + " |")
     all_paper = all(paper_scene(rows, s) for s in names)
-    cells = ["**Mean**"]
+    cells = ["**Mean**", ""]
     for metric in METRICS:
         for m in methods:
             cell = _fmt(_mean(ours.get((metric, m), [])), metric)
@@ -106,11 +106,22 @@ def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
             cells.append(cell)
     lines.append("| " + " | ".join(cells) + " |")
     lines.append(
-        "| Paper mean (8 scenes) | "
+        "| Paper mean (8 scenes) | | "
         + " | ".join(f"({TABLE3[metric]['Mean'][m]:.{DIGITS[metric]}f})" for metric in METRICS for m in methods)
         + " |"
     )
     return "\n".join(lines)
+
+
+def blank_cell(rows: list[dict], scene: str) -> str:
+    """PSNR / SSIM of an all-white image on the scene's unobserved views, mean over its configurations
+    (each run scores it on its own test views: the same for every method of a configuration)."""
+    per_config = {r["config"]: r for r in ok_rows(rows) if r["scene"] == scene and metric(r, "blank_psnr") is not None}
+    if not per_config:
+        return "-"
+    psnr = sum(metric(r, "blank_psnr") for r in per_config.values()) / len(per_config)
+    ssim_ = sum(metric(r, "blank_ssim") for r in per_config.values()) / len(per_config)
+    return f"{psnr:.2f} / {ssim_:.3f}"
 
 
 def table2(rows: list[dict]) -> str:
@@ -234,7 +245,7 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
     parts = [
         "# flipviz bench: Just Flip, paper Table III" + (" and Table II" if cfg.ablation else ""),
         "",
-        f"Settings: field `{cfg.field}`"
+        f"Settings: preset `{cfg.preset}`, field `{cfg.field}`"
         + (f" (grid {cfg.grid_res})" if cfg.grid_res else "") + f", {cfg.n_samples} samples/ray"
         + f", {cfg.res} px, {cfg.steps} steps of {cfg.batch_rays} rays, "
         f"seed {cfg.seed}, device `{cfg.device}`, "
@@ -243,7 +254,8 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
         "",
         "## Table III: unobserved views, mean over configurations",
         "",
-        "Cells: ours (paper). The paper's numbers are shown for NeRF-synthetic scenes read from a folder;"
+        "Cells: ours (paper). *white image*: PSNR / SSIM of an all-white image on the same views, what a"
+        " render showing nothing scores. The paper's numbers are shown for NeRF-synthetic scenes read from a folder;"
         " the paper trained vanilla NeRF for 50k iterations, so compare trends, not values."
         " †k/n: only k of n configurations finished."
         + (" LPIPS n/a: AlexNet/LPIPS weights were not available." if lpips_na else ""),

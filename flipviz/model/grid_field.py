@@ -82,8 +82,10 @@ class GridConfig:
         if len(self.upsample_at) != len(self.grid_res) - 1:
             raise ValueError("GridConfig.upsample_at needs one fraction per grid_res step")
 
-    def build(self, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str) -> "GridField":
-        return GridField(self, bbox, with_beta, beta_init, device)
+    def build(
+        self, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str, beta_from: str = "colour"
+    ) -> "GridField":
+        return GridField(self, bbox, with_beta, beta_init, device, beta_from)
 
 
 def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
@@ -94,9 +96,10 @@ def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
 
 class GridField(BoxField):
     def __init__(
-        self, cfg: GridConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu"
-    ):
-        super().__init__(bbox, with_beta, device)
+        self, cfg: GridConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu",
+        beta_from: str = "colour",
+    ):  # fmt: skip
+        super().__init__(bbox, with_beta, device, beta_from)
         self.cfg = cfg
         ext = np.asarray(bbox[1], dtype=np.float64) - np.asarray(bbox[0], dtype=np.float64)
         self.voxel0 = float(ext.max() / (cfg.grid_res[0] - 1))  # the scale s of the module docstring
@@ -112,16 +115,14 @@ class GridField(BoxField):
         self.register_buffer("stage", torch.zeros((), dtype=torch.long, device=device))
         self.color_thresh = self._early_color_thresh()
         in_dim = cfg.feat_dim + (3 + 6 * cfg.view_pe if cfg.view_dependent else 0)
-        out_dim = 4 if with_beta else 3
         layers: list[nn.Module] = []
         for _ in range(cfg.mlp_layers):
             layers += [nn.Linear(in_dim, cfg.mlp_width), nn.ReLU(inplace=True)]
             in_dim = cfg.mlp_width
-        layers.append(nn.Linear(in_dim, out_dim))
-        self.rgbnet = nn.Sequential(*layers).to(device)
-        if with_beta:  # start with a small per-sample variance: softplus(raw) = beta_init^2
-            with torch.no_grad():
-                self.rgbnet[-1].bias[3] = math.log(math.expm1(beta_init**2))
+        layers.append(nn.Linear(in_dim, 3 + self.beta_outputs()))
+        self.rgbnet = nn.Sequential(*layers)
+        self.init_beta(cfg.feat_dim, self.rgbnet[-1], beta_init)  # position features: the feature grid's
+        self.to(device)
 
     def _early_color_thresh(self) -> float:
         return min(self.cfg.color_thresh, self.cfg.alpha_init / 100.0)
@@ -202,11 +203,10 @@ class GridField(BoxField):
         return F.softplus(self._lerp(self.density_grid, corners)[:, 0] + self.shift) / self.voxel0
 
     def _color(self, corners: tuple[Tensor, Tensor], d: Tensor) -> tuple[Tensor, Tensor | None]:
-        h = self._lerp(self.feat_grid, corners)
-        if self.cfg.view_dependent:
-            h = torch.cat([h, posenc(d, self.cfg.view_pe)], -1)  # unit directions: no pi scale
+        feat = self._lerp(self.feat_grid, corners)  # (P, C): what the grid holds at the points
+        h = torch.cat([feat, posenc(d, self.cfg.view_pe)], -1) if self.cfg.view_dependent else feat  # unit d: no pi
         out = self.rgbnet(h)
-        return torch.sigmoid(out[:, :3]), (out[:, 3] if self.with_beta else None)
+        return torch.sigmoid(out[:, :3]), self.beta_raw(feat, out)
 
     # --- schedule ------------------------------------------------------------------------
     def update_schedule(self, step: int, total_steps: int, step_len: float) -> bool:

@@ -44,15 +44,18 @@ class NerfConfig:
     barf_c2f: tuple[float, float] | None = None
     """BARF's positional-encoding annealing window, e.g. (0.1, 0.5); None = off."""
 
-    def build(self, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str) -> "NerfField":
-        return NerfField(self, bbox, with_beta, beta_init, device)
+    def build(
+        self, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str, beta_from: str = "colour"
+    ) -> "NerfField":
+        return NerfField(self, bbox, with_beta, beta_init, device, beta_from)
 
 
 class NerfField(BoxField):
     def __init__(
-        self, cfg: NerfConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu"
-    ):
-        super().__init__(bbox, with_beta, device)
+        self, cfg: NerfConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu",
+        beta_from: str = "colour",
+    ):  # fmt: skip
+        super().__init__(bbox, with_beta, device, beta_from)
         self.cfg = cfg
         self.register_buffer("progress", torch.ones((), device=device))  # for BARF's c2f schedule
         W, L, Ld = cfg.width, cfg.pe, cfg.dir_pe
@@ -68,10 +71,8 @@ class NerfField(BoxField):
         self.sigma_head = nn.Linear(W, 1)
         self.feature = nn.Linear(W, W)
         self.view = nn.Linear(W + in_d, W // 2)
-        self.out = nn.Linear(W // 2, 4 if with_beta else 3)
-        if with_beta:  # start with a small per-sample variance: softplus(raw) = beta_init^2
-            with torch.no_grad():
-                self.out.bias[3] = math.log(math.expm1(beta_init**2))
+        self.out = nn.Linear(W // 2, 3 + self.beta_outputs())
+        self.init_beta(W, self.out, beta_init)  # position features: the density trunk's
         self.to(device)
 
     def barf_weights(self) -> Tensor | None:
@@ -93,9 +94,9 @@ class NerfField(BoxField):
                 h = torch.cat([h, px], -1)
             h = F.relu(layer(h))
         sigma = F.softplus(self.sigma_head(h)[:, 0])
-        h = torch.cat([self.feature(h), posenc(d, self.cfg.dir_pe, math.pi)], -1)
-        out = self.out(F.relu(self.view(h)))
-        return sigma, torch.sigmoid(out[:, :3]), (out[:, 3] if self.with_beta else None)
+        v = torch.cat([self.feature(h), posenc(d, self.cfg.dir_pe, math.pi)], -1)
+        out = self.out(F.relu(self.view(v)))
+        return sigma, torch.sigmoid(out[:, :3]), self.beta_raw(h, out)
 
     def density(self, x: Tensor) -> Tensor:
         return self(x, torch.zeros_like(x))[0]

@@ -15,6 +15,12 @@ Mixing the two: the paper fixes a certain ray's variance at beta_min^2, so under
 ||C - C_hat||^2 / (2 beta_min^2) + const. The objective is the batch mean of these per-ray NLLs
 times the constant 2 beta_min^2 / 3: a certain ray then contributes exactly its per-channel squared
 error, in the warm-up and after it, so the switch changes nothing for certain rays.
+
+Two choices where the official code differs from the paper's text (the authors' setting):
+- `channels` "mean": ||C - C_hat||^2 / 3 in the NLL (the code's mean over channels), so the optimal
+  beta^2 is the per-channel squared error, a third of the sum's: mirrored rays weigh 3x more. The
+  constant then is 2 beta_min^2, and certain rays still contribute their per-channel squared error.
+- `density_on` "all": the density term reaches every ray once the NLL is on, B/L's included.
 """
 
 from __future__ import annotations
@@ -35,17 +41,25 @@ class Objective:
     """w of the density regulariser (w / N_s) sum_j sigma(t_j) (Eqn. 7)."""
     nll_start: int = 0
     """First step on which uncertain rays use the NLL."""
+    channels: str = "sum"
+    """||C - C_hat||^2 of the NLL summed over RGB (the paper's norm) or averaged ("mean": the code's)."""
+    density_on: str = "uncertain"
+    """The density term on the uncertain rays (Eqn. 7) or on every ray ("all": the code's)."""
 
     def __call__(self, out: dict[str, Tensor], target: Tensor, uncertain: Tensor, step: int) -> Tensor:
         """out: the renderer's rgb (R, 3) (+ beta2, sigma_mean (R,) once the NLL is on); target (R, 3);
         uncertain (R,) bool: the rays whose variance is learned."""
         sq = (out["rgb"] - target).pow(2).sum(-1)  # ||C - C_hat||^2, (R,)
-        if step < self.nll_start or not bool(uncertain.any()):
+        everywhere = self.density_on == "all"
+        if step < self.nll_start or not (bool(uncertain.any()) or everywhere):
             return sq.mean() / 3.0  # L_p as the MSE over rays and channels
-        b2min = self.beta_min**2
-        nll_u = sq / (2.0 * out["beta2"]) + 0.5 * torch.log(out["beta2"]) + self.density_weight * out["sigma_mean"]
-        nll_c = sq / (2.0 * b2min)  # a certain ray: beta_hat^2 = beta_min^2, constants dropped
-        return (2.0 * b2min / 3.0) * torch.where(uncertain, nll_u, nll_c).mean()
+        k = 3.0 if self.channels == "mean" else 1.0  # the NLL's error: the sum, or the mean over channels
+        b2min, density = self.beta_min**2, self.density_weight * out["sigma_mean"]  # (w / N_s) sum_j sigma_j
+        nll_c = sq / k / (2.0 * b2min) + (density if everywhere else 0.0)  # a certain ray: beta_hat^2 = beta_min^2
+        if not bool(uncertain.any()):
+            return (2.0 * b2min * k / 3.0) * nll_c.mean()
+        nll_u = sq / k / (2.0 * out["beta2"]) + 0.5 * torch.log(out["beta2"]) + density  # Eqn. 7
+        return (2.0 * b2min * k / 3.0) * torch.where(uncertain, nll_u, nll_c).mean()
 
 
 def psnr(mse: float) -> float:

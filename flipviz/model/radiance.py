@@ -47,6 +47,13 @@ class ModelConfig:
     w_entropy: float = 1e-3
     """Weight of the opacity-entropy term (DVGO's weight_entropy_last): pushes every ray to be
     fully opaque or fully transparent, which removes the white fog a white background allows."""
+    background: Literal["white", "learned", "last"] = "white"
+    """What a ray's unspent weight sees (renderer.py): white, one learned colour, or the field's
+    colour at the ray's far end (the official code)."""
+    beta_from: Literal["colour", "position"] = "colour"
+    """The variance head on the colour branch, or on the position features alone (the official code)."""
+    background_lr: float = 0.1
+    """Adam learning rate of the learned background colour (its logit)."""
 
 
 class RadianceModel(nn.Module):
@@ -69,12 +76,18 @@ class RadianceModel(nn.Module):
         self.near, self.far, self.with_beta = float(near), float(far), bool(with_beta)
         self.device = torch.device(device)
         self.register_buffer("bbox", torch.as_tensor(bbox, dtype=torch.float32, device=self.device))
-        self.field = cfg.field.build(bbox, self.with_beta, cfg.beta_init, self.device)
+        self.field = cfg.field.build(bbox, self.with_beta, cfg.beta_init, self.device, cfg.beta_from)
+        if cfg.background == "learned":  # one RGB colour, sigmoid(logit); starts near white
+            self.background_logit = nn.Parameter(torch.full((3,), 3.0, device=self.device))
         self._pending_opacity: list[Tensor] = []
+
+    def background_rgb(self) -> Tensor | None:
+        """The learned background colour (3,), or None (white or last)."""
+        return torch.sigmoid(self.background_logit) if self.cfg.background == "learned" else None
 
     # --- rendering -----------------------------------------------------------------------
     def render_rays(self, origins: Tensor, dirs: Tensor, *, training: bool) -> dict[str, Tensor]:
-        """rgb (R,3) on white, depth (R,), opacity (R,), sigma_mean (R,), beta2 (R,) if with_beta.
+        """rgb (R,3) on the background, depth (R,), opacity (R,), sigma_mean (R,), beta2 (R,) if with_beta.
 
         With training=True, samples are jittered and the batch's opacities are remembered for
         the entropy term of the next `regulariser()` call.
@@ -82,6 +95,7 @@ class RadianceModel(nn.Module):
         out = render_rays(
             self.field, origins, dirs, bbox=self.bbox, near=self.near, far=self.far, n_samples=self.cfg.n_samples,
             training=training, beta_min=self.cfg.beta_min, beta2_mode=self.cfg.beta2_mode,
+            background=self.cfg.background, background_rgb=self.background_rgb(),
         )  # fmt: skip
         if training and self.cfg.w_entropy > 0 and torch.is_grad_enabled():
             self._pending_opacity = self._pending_opacity[-15:] + [out["opacity"]]  # bounded
@@ -163,8 +177,13 @@ class RadianceModel(nn.Module):
 
     # --- optimisation --------------------------------------------------------------------
     def make_optimizer(self) -> torch.optim.Optimizer:
-        """The field's optimiser over its current parameters (rebuild it when update_schedule says so)."""
-        return self.field.make_optimizer()
+        """The field's optimiser over its current parameters (rebuild it when update_schedule says so),
+        and the learned background's group."""
+        opt = self.field.make_optimizer()
+        if self.cfg.background == "learned":
+            lr = self.cfg.background_lr
+            opt.add_param_group({"params": [self.background_logit], "lr": lr, "lr0": lr, "name": "background"})
+        return opt
 
     def adjust_lr(self, optimizer: torch.optim.Optimizer, step: int, total_steps: int) -> None:
         """Exponential decay lr0 -> lr0 * lr_decay over training."""

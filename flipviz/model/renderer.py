@@ -6,7 +6,13 @@ colour field c, and alpha-compositing N_s samples t_1 < ... < t_N (the quadratur
     alpha_j = 1 - exp(-sigma_j delta_j)                 (opacity of the segment around t_j)
     T_j     = exp(-sum_{k<j} sigma_k delta_k)           (transmittance, T(t) of Eqn. 1)
     w_j     = T_j alpha_j                               (the weight of sample j)
-    C_hat   = sum_j w_j c_j + (1 - sum_j w_j) * 1       (white background)
+    C_hat   = sum_j w_j c_j + (1 - sum_j w_j) * c_bg    (the background c_bg, below)
+
+The background (`background`): white (flipviz: the datasets' background, so space no view saw
+stays white), learned (one RGB colour, trained), or last (the official code: its last interval is
+1e10 long, so the field's colour at the ray's far end c(x_N) is the background, and space no view
+saw shows whatever the field holds there: fog). Rays that miss the scene box are never sampled and
+show white (learned: the learned colour).
 
 Uncertainty (Sec. IV-C) gives each sample a variance beta_bar_j^2 = beta_min^2 + softplus(raw_j)
 and composites it along the ray. Two choices (`beta2_mode`):
@@ -74,6 +80,8 @@ def render_rays(
     training: bool,
     beta_min: float,
     beta2_mode: str = "linear",
+    background: str = "white",
+    background_rgb: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """Render R rays (origins (R,3), unit dirs (R,3)); see the module docstring for the maths.
 
@@ -84,9 +92,11 @@ def render_rays(
     with_beta = field.with_beta
     if beta2_mode not in ("linear", "variance"):
         raise ValueError(f"beta2_mode must be 'linear' or 'variance', got {beta2_mode!r}")
+    if background not in ("white", "learned", "last") or (background == "learned") != (background_rgb is not None):
+        raise ValueError(f"background must be white, last, or learned with its colour; got {background!r}")
     R, N, dev = origins.shape[0], n_samples, origins.device
     dtype = origins.dtype
-    rgb = torch.ones(R, 3, device=dev, dtype=dtype)
+    rgb = torch.ones(R, 3, device=dev, dtype=dtype) if background_rgb is None else background_rgb.expand(R, 3)
     depth = torch.full((R,), float(far), device=dev, dtype=dtype)
     opacity = torch.zeros(R, device=dev, dtype=dtype)
     sigma_mean = torch.zeros(R, device=dev, dtype=dtype)
@@ -136,7 +146,11 @@ def render_rays(
     acc = w.sum(-1)  # opacity sum_j w_j
     col = torch.zeros(Rh, 3, device=dev, dtype=dtype).index_add(0, rid, wk[:, None] * c)  # sum_j w_j c_j
     dep = (w * t).sum(-1)
-    h_rgb = col + (1.0 - acc)[:, None]  # white background
+    if background == "last":  # c_bg = c(x_N), the field's colour at the far end (its own beta is not used)
+        c_bg = field.color(x[:, -1], d)[0]  # (Rh, 3)
+    else:
+        c_bg = 1.0 if background_rgb is None else background_rgb  # white, or the learned colour (3,)
+    h_rgb = col + (1.0 - acc)[:, None] * c_bg
     h_depth = dep + (1.0 - acc) * far
     out["rgb"] = rgb.index_put((hit,), h_rgb)
     out["depth"] = depth.index_put((hit,), h_depth)

@@ -70,7 +70,15 @@ def type_words(hint: object) -> str:
 # --preset paper: the paper's setting (Sec. V-A: vanilla NeRF, one network sampling 128 points, 50k
 # iterations, the uncertainty from 10k on; the rest as the official code's base, BARF's NeRF: 1024
 # rays a step, lr 5e-4 -> 1e-4, pose lr 1e-3 -> 1e-5, coarse-to-fine PE (0.1, 0.5) under BA).
-PAPER_PRESET: dict[str, object] = {"field": "nerf", "n_samples": 128, "steps": 50_000, "uncertainty_start": 0.2, "batch_rays": 1024}
+# --preset authors: where the official code (minjae-lulu/Just-Flip) differs from the paper's text and
+# from flipviz's defaults, its choice (docs/AUTHORS_SETTING.md gives each with its file and line).
+AUTHORS_PRESET: dict[str, object] = {
+    "background": "last", "density_on": "all", "nll_channels": "mean", "beta_from": "position", "refine": "all",
+    "mirror_pose": "lookat", "refine_plane": False,
+}  # fmt: skip
+PAPER_PRESET: dict[str, object] = {
+    "field": "nerf", "n_samples": 128, "steps": 50_000, "uncertainty_start": 0.2, "batch_rays": 1024, **AUTHORS_PRESET,
+}  # fmt: skip
 PAPER_LR_DECAY = 0.2  # 5e-4 -> 1e-4 (BARF's options/nerf_blender.yaml: lr 5e-4, lr_end 1e-4)
 
 
@@ -136,7 +144,20 @@ class TrainConfig:
     uncertainty: bool = True
     """Learned beta^2 on mirrored rays (Flip+U; --no-uncertainty gives the Table II ablation)."""
     refine: Literal["mirrored", "all"] = "mirrored"
-    """Which poses BA refines."""
+    """Which poses BA refines (Flip methods): the mirrored ones (the paper's text), or all (the code's)."""
+    background: Literal["white", "learned", "last"] = "white"
+    """What a ray's left-over transmittance sees (model/renderer.py): white (the datasets' background:
+    space no view saw stays white), learned (one RGB colour, trained), or last (the official code: the
+    field's colour at the ray's far end, so space no view saw shows whatever the field holds: fog)."""
+    density_on: Literal["uncertain", "all"] = "uncertain"
+    """The NLL's density term (w / N_s) sum sigma: on the uncertain rays (the paper's Eqn. 7), or on every
+    ray once the NLL starts, B/L's included (the official code)."""
+    nll_channels: Literal["sum", "mean"] = "sum"
+    """The NLL's ||C - C_hat||^2: summed over RGB (the paper's norm), or averaged (the official code: the
+    optimal beta^2 is a third of the sum's, so mirrored rays weigh 3x more)."""
+    beta_from: Literal["colour", "position"] = "colour"
+    """The variance head: on the colour branch (position and view direction), or on the position
+    features alone (the official code: from the density trunk)."""
     seed: int = 0
     device: str = "cpu"
     """cpu | cuda | cuda:N."""
@@ -172,16 +193,19 @@ class TrainConfig:
     same held-out PSNR as 128 (27.1 dB) at half the time."""
     grid_res: tuple[int, ...] | None = None
     """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
-    preset: Literal["fast", "paper"] = "fast"
-    """fast: the grid field (the defaults above); paper: the paper's vanilla NeRF (--field nerf, 128 samples,
-    50k steps, the NLL from 10k, lr 5e-4 -> 1e-4, no entropy term), for a GPU. A setting you pass yourself
-    (other than its fast default) wins over the preset's."""
+    preset: Literal["fast", "authors", "paper"] = "fast"
+    """fast: flipviz's defaults (the grid field, the settings above); authors: the official code's choices
+    on the fast grid (--background last, --density-on all, --nll-channels mean, --beta-from position,
+    --refine all, --mirror-pose lookat, --no-refine-plane; the code's plane is x = 0: add --mirror-plane
+    official); paper: those and the paper's vanilla NeRF (--field nerf, 128 samples, 50k steps, the NLL
+    from 10k, lr 5e-4 -> 1e-4, no entropy term), for a GPU. A setting you pass yourself (other than its
+    fast default) wins over the preset's (docs/AUTHORS_SETTING.md)."""
 
     def __post_init__(self) -> None:
-        if self.preset == "paper":  # the preset's value wherever the fast default was left as it is
-            for name, value in PAPER_PRESET.items():
-                if getattr(self, name) == _FAST_DEFAULTS[name]:
-                    setattr(self, name, value)
+        preset = {"authors": AUTHORS_PRESET, "paper": PAPER_PRESET}.get(self.preset, {})
+        for name, value in preset.items():  # the preset's value wherever the fast default was left as it is
+            if getattr(self, name) == _FAST_DEFAULTS[name]:
+                setattr(self, name, value)
 
     def validate(self) -> "TrainConfig":
         """Every setting of its type and within its stated limits, else one `UserError` line; train,
@@ -217,4 +241,4 @@ class TrainConfig:
         return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}
 
 
-_FAST_DEFAULTS = {f.name: f.default for f in fields(TrainConfig) if f.name in PAPER_PRESET}
+_FAST_DEFAULTS = {f.name: f.default for f in fields(TrainConfig) if f.name in PAPER_PRESET}  # AUTHORS_PRESET's too

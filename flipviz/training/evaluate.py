@@ -175,6 +175,14 @@ def lpips_distance(net: LPIPSAlex, pred: np.ndarray, gt: np.ndarray) -> float:
 STRUCTURE = ("iou", "psnr_object", "depth_abs")
 
 
+def blank_scores(gts: list[np.ndarray]) -> dict[str, float]:
+    """PSNR and SSIM of an all-white image against each view, averaged: the score of a render that shows
+    nothing at all. A table's scores mean something only well above it (lego: about 10 dB)."""
+    white = [np.ones_like(g) for g in gts]
+    return {"blank_psnr": float(np.mean([image_psnr(w, g) for w, g in zip(white, gts)])),
+            "blank_ssim": float(np.mean([ssim(w, g) for w, g in zip(white, gts)]))}  # fmt: skip
+
+
 def score_views(preds: list[np.ndarray], gts: list[np.ndarray], names: list[str], structure: list[dict] | None = None) -> dict:
     """Mean and per-view PSNR / SSIM / LPIPS, and the structure scores given per view (`structure_scores`).
     LPIPS is "unavailable" (+ lpips_reason) without weights."""

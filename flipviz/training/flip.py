@@ -132,8 +132,9 @@ def pose_refiner(ts: TrainingSet, steps: int, device: torch.device | str) -> Pos
 
 # ---------------------------------------------------------------------------------- IV-C: loss
 def objective(cfg: TrainConfig, beta_min: float) -> Objective:
-    """MSE for the first `uncertainty_start` of the steps, then the NLL on uncertain rays."""
-    return Objective(beta_min, cfg.density_weight, nll_start=int(cfg.uncertainty_start * cfg.steps))
+    """MSE for the first `uncertainty_start` of the steps, then the NLL on uncertain rays (the density
+    term, with --density-on all, on every ray)."""
+    return Objective(beta_min, cfg.density_weight, int(cfg.uncertainty_start * cfg.steps), cfg.nll_channels, cfg.density_on)
 
 
 # ---------------------------------------------------------------------------------- the hooks

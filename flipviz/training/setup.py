@@ -59,7 +59,8 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
     else:
         field = GridConfig()
     entropy = {"w_entropy": 0.0} if cfg.preset == "paper" else {}  # vanilla NeRF has no entropy term
-    return ModelConfig(field=field, n_samples=cfg.n_samples, beta2_mode=cfg.beta2_mode, **entropy)
+    return ModelConfig(field=field, n_samples=cfg.n_samples, beta2_mode=cfg.beta2_mode, background=cfg.background,
+                       beta_from=cfg.beta_from, **entropy)  # fmt: skip
 
 
 def run_split(cfg: TrainConfig, scene: SceneData) -> Split:

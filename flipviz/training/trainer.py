@@ -282,7 +282,7 @@ class Trainer:
         structure = [ev.structure_scores(o["rgb"], v.rgb, o["opacity"], v.alpha, o["depth"], true_depth(self.scene, v.camera))
                      for o, v in zip(outs, tests)]  # fmt: skip
         m = ev.score_views(preds, [v.rgb for v in tests], [v.name for v in tests], structure)
-        m.update(train_seconds=self.train_seconds, steps=self.step, **self.report())
+        m.update(train_seconds=self.train_seconds, steps=self.step, **ev.blank_scores([v.rgb for v in tests]), **self.report())
         if write:
             try:
                 artifacts.write_test_renders(self.run_dir, [v.name for v in tests], preds, [v.rgb for v in tests])

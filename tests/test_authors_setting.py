@@ -1,0 +1,138 @@
+"""The official code's choices (--preset authors), one test each: every one fails when its option is
+ignored (docs/AUTHORS_SETTING.md lists them with their file and line on both sides). BA of all
+poses (--refine all) is test_methods.py::test_refine_all_moves_the_inputs_too's."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, RadianceModel
+from flipviz.model.renderer import render_rays
+from flipviz.training import flip
+from flipviz.training.config import AUTHORS_PRESET, TrainConfig
+
+B_MIN, W = 0.1, 0.01
+BOX = np.array([[-1.0] * 3, [1.0] * 3])
+
+
+class Empty:
+    """A field with no density anywhere; its colour is 0.2 grey wherever it is asked."""
+
+    with_beta = False
+
+    def query(self, x, d):
+        n = x.shape[0] * x.shape[1]
+        return torch.zeros(x.shape[:2]), lambda w: (torch.arange(n), torch.full((n, 3), 0.2), None)
+
+    def color(self, x, d):
+        return torch.full((x.shape[0], 3), 0.2), None
+
+
+def render_empty(background: str, rgb: torch.Tensor | None = None) -> torch.Tensor:
+    o, d = torch.tensor([[0.0, 0.0, 3.0], [5.0, 5.0, 3.0]]), torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
+    out = render_rays(Empty(), o, d, bbox=torch.as_tensor(BOX, dtype=torch.float32), near=0.5, far=6.0, n_samples=8,
+                      training=False, beta_min=B_MIN, background=background, background_rgb=rgb)  # fmt: skip
+    return out["rgb"]  # ray 0 crosses the box, ray 1 misses it
+
+
+def test_background_last_shows_the_fields_far_colour_where_white_shows_white():
+    assert render_empty("white").tolist() == [[1.0] * 3, [1.0] * 3]
+    last = render_empty("last")
+    assert last[0].tolist() == pytest.approx([0.2] * 3) and last[1].tolist() == [1.0] * 3  # a miss is never sampled
+
+
+def test_a_learned_background_is_trained():
+    rgb = render_empty("learned", torch.tensor([0.3, 0.5, 0.7]))
+    assert torch.allclose(rgb, torch.tensor([[0.3, 0.5, 0.7]] * 2))  # on the box's empty ray and on a miss
+    m = RadianceModel(ModelConfig(GridConfig(grid_res=(16,), upsample_at=()), background="learned"), BOX, 0.5, 6.0, False)
+    opt = m.make_optimizer()
+    o, d = torch.tensor([[5.0, 5.0, 3.0]]).expand(64, 3), torch.tensor([[0.0, 0.0, -1.0]]).expand(64, 3)
+    for step in range(200):  # rays that miss the box see only the background: fit it to grey
+        m.adjust_lr(opt, step, 200)
+        loss = (m.render_rays(o, d, training=True)["rgb"] - 0.4).pow(2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert m.background_rgb().tolist() == pytest.approx([0.4] * 3, abs=0.05)
+    assert "background_logit" in m.state_dict()  # it is saved with the model
+
+
+def batch():
+    """Three certain rays (B/L) with densities, and the same three with the first two uncertain."""
+    rgb = torch.tensor([[0.2, 0.4, 0.6], [1.0, 1.0, 1.0], [0.5, 0.5, 0.5]], requires_grad=True)
+    target = torch.tensor([[0.3, 0.4, 0.2], [0.5, 1.0, 1.0], [0.1, 0.5, 0.7]])
+    out = {"rgb": rgb, "beta2": torch.tensor([0.04, 0.5, B_MIN**2], requires_grad=True),
+           "sigma_mean": torch.tensor([2.0, 1.0, 3.0], requires_grad=True)}  # fmt: skip
+    return out, target
+
+
+def test_the_density_term_on_all_rays_reaches_bl():
+    out, target = batch()
+    certain = torch.zeros(3, dtype=torch.bool)
+    Objective(B_MIN, W, density_on="uncertain")(out, target, certain, step=0).backward()
+    assert out["sigma_mean"].grad is None  # B/L: the MSE, no density term
+    Objective(B_MIN, W, density_on="all")(out, target, certain, step=0).backward()
+    assert out["sigma_mean"].grad.tolist() == pytest.approx([(2 * B_MIN**2 / 3) * W / 3] * 3, rel=1e-6)
+    out, target = batch()
+    Objective(B_MIN, W, density_on="all")(out, target, certain, step=0).backward()  # the MSE part is unchanged
+    mse = ((out["rgb"] - target) ** 2).mean().item()
+    got = Objective(B_MIN, W, density_on="all")(out, target, certain, step=0).item()
+    assert got == pytest.approx(mse + (2 * B_MIN**2 / 3) * W * 2.0, rel=1e-6)  # mean sigma 2
+
+
+@pytest.mark.parametrize("channels, k", [("sum", 1.0), ("mean", 3.0)])
+def test_the_nlls_optimal_variance_is_the_summed_or_the_mean_error(channels, k):
+    """d L / d beta^2 = 0 at beta^2 = ||C - C_hat||^2 / k: the sum (the paper's norm) or the per-channel
+    mean (the code's)."""
+    out, target = batch()
+    sq = ((out["rgb"] - target) ** 2).sum(-1)
+    out["beta2"] = (sq / k).detach().requires_grad_(True)
+    Objective(B_MIN, 0.0, channels=channels)(out, target, torch.ones(3, dtype=torch.bool), step=0).backward()
+    assert out["beta2"].grad.abs().max().item() < 1e-6
+    certain = torch.zeros(3, dtype=torch.bool)  # a certain ray still weighs its per-channel MSE
+    assert Objective(B_MIN, 0.0, channels=channels)(out, target, certain, step=0).item() == pytest.approx(
+        ((out["rgb"] - target) ** 2).mean().item(), rel=1e-6)  # fmt: skip
+
+
+@pytest.mark.parametrize("field", [GridConfig(grid_res=(16,), upsample_at=()), NerfConfig(depth=2, width=32, pe=4, dir_pe=2)])
+def test_beta_from_position_does_not_see_the_view_direction(field):
+    torch.manual_seed(0)
+    x = torch.rand(64, 3) * 1.6 - 0.8
+    d1, d2 = torch.tensor([[1.0, 0.0, 0.0]]).expand(64, 3), torch.tensor([[0.0, -1.0, 0.0]]).expand(64, 3)
+    raws = {}
+    for beta_from in ("colour", "position"):
+        f = RadianceModel(ModelConfig(field, beta_from=beta_from), BOX, 0.5, 6.0, with_beta=True).field
+        with torch.no_grad():
+            for p in f.parameters():
+                p.uniform_(-0.5, 0.5)  # a trained-looking field, not the flat start
+        raws[beta_from] = (f.color(x, d1)[1], f.color(x, d2)[1])
+    assert not torch.allclose(*raws["colour"])
+    assert torch.equal(*raws["position"])
+
+
+def test_preset_authors_sets_each_choice_and_a_given_value_wins():
+    cfg = TrainConfig(preset="authors")
+    assert {k: getattr(cfg, k) for k in AUTHORS_PRESET} == AUTHORS_PRESET
+    assert (cfg.field, cfg.steps) == ("grid", 600)  # the fast grid, unlike --preset paper
+    assert TrainConfig(preset="authors", background="learned").background == "learned"
+    assert {k: getattr(TrainConfig(preset="paper"), k) for k in AUTHORS_PRESET} == AUTHORS_PRESET
+    obj = flip.objective(TrainConfig(preset="authors"), B_MIN)
+    assert (obj.channels, obj.density_on) == ("mean", "all")
+
+
+@pytest.mark.parametrize("background", ["last", "learned"])
+def test_a_run_in_the_authors_setting_trains_saves_and_resumes(tmp_path, background):
+    from flipviz.training.checkpoint import load_checkpoint
+    from flipviz.training.trainer import Trainer
+
+    kw = dict(scene="chair", res=24, steps=20, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, no_rrd=True,
+              mirror_plane="official", preset="authors", background=background, out=tmp_path / "run")  # fmt: skip
+    m = Trainer(TrainConfig(**kw)).run()
+    assert m["status"] == "finished" and math.isfinite(m["psnr"])
+    assert load_checkpoint(tmp_path / "run")["config"]["background"] == background
+    again = Trainer(TrainConfig(**dict(kw, steps=30), resume=tmp_path / "run")).run()
+    assert again["status"] == "finished" and again["steps"] == 30
