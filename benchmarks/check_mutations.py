@@ -35,15 +35,15 @@ class Mutation:
 MUTATIONS = (
     Mutation(
         "(a) the NLL is never applied (always MSE)", "flipviz/model/objective.py",
-        "if step < self.nll_start or not bool(uncertain.any()):", "if True:",
+        "if step < self.nll_start or not (bool(uncertain.any()) or everywhere):", "if True:",
     ),
     Mutation(
         "(b) the MSE warm-up is removed", "flipviz/training/flip.py",
-        "nll_start=int(cfg.uncertainty_start * cfg.steps)", "nll_start=0",
+        "int(cfg.uncertainty_start * cfg.steps)", "0",
     ),
     Mutation(
         "(c) the 2 beta_min^2 / 3 rescale is dropped", "flipviz/model/objective.py",
-        "return (2.0 * b2min / 3.0) * torch.where(", "return torch.where(",
+        "return (2.0 * b2min * k / 3.0) * torch.where(", "return torch.where(",
     ),
     Mutation(
         "(d) the density weight is forced to 0", "flipviz/training/flip.py",
