@@ -230,8 +230,12 @@ class App(Observer):
         cam.fov = np.deg2rad(50.0)
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        self.views.add_client(client, folder=self.your_view)
-        self.preview.set_visible(client.client_id, True)
+        try:
+            self.views.add_client(client, folder=self.your_view)
+            self.preview.set_visible(client.client_id, True)
+        except RuntimeError as e:  # the client left while its panel was built: viser removed its handles
+            log.info("a client left while it connected (%s)", str(e).splitlines()[0])
+            self._on_disconnect(client)
 
     def _on_disconnect(self, client: viser.ClientHandle) -> None:
         self.views.remove_client(client.client_id)
