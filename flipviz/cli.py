@@ -115,13 +115,12 @@ def _serve_until_interrupted(url: str | None) -> None:
 def _export(cmd: ExportScene) -> int:
     from flipviz.data.blender import export_scene
     from flipviz.data.driveby import export_driveby
+    from flipviz.files import cannot_write
 
     if not 8 <= cmd.res <= 1024:
         raise UserError(f"--res must be in 8..1024, got {cmd.res}")
-    try:
+    with cannot_write(cmd.out_dir, "the scene into"):
         (export_driveby if cmd.trajectory == "driveby" else export_scene)(cmd.scene, cmd.out_dir, res=cmd.res)
-    except OSError as e:
-        raise UserError(f"cannot write {cmd.out_dir}: {e.strerror or e}") from None
     print(f"wrote {cmd.scene} ({cmd.trajectory}) to {cmd.out_dir}")
     return 0
 

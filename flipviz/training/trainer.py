@@ -29,7 +29,7 @@ from flipviz.data.builtin import true_depth
 from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
-from flipviz.files import FolderLock, remove_leftover_temps, signals_deferred
+from flipviz.files import FolderLock, cannot_write, remove_leftover_temps, signals_deferred
 from flipviz.geometry.coverage import coverage
 from flipviz.geometry.poses import pose_errors
 from flipviz.geometry.symmetry import PlaneEstimate, plane_error
@@ -284,14 +284,12 @@ class Trainer:
         m = ev.score_views(preds, [v.rgb for v in tests], [v.name for v in tests], structure)
         m.update(train_seconds=self.train_seconds, steps=self.step, **ev.blank_scores([v.rgb for v in tests]), **self.report())
         if write:
-            try:
+            with cannot_write(self.run_dir, "the results in"):
                 artifacts.write_test_renders(self.run_dir, [v.name for v in tests], preds, [v.rgb for v in tests])
                 if self.training.mirror_ids:
                     mirrors = [v.image for v in self.training.mirror_views]
                     artifacts.write_transforms(self.run_dir, self.mirror_cameras(), mirrors)
                 artifacts.write_metrics(self.run_dir, m)
-            except OSError as e:
-                raise UserError(f"cannot write the results in {self.run_dir}: {e.strerror or e}") from None
         return m
 
     def report(self) -> dict:
