@@ -6,8 +6,8 @@
 2. app_snapped.png: snapped to an unobserved test view, ground truth and render blended half-half;
 3. app_mirror.png: the mug, its mirrored frustums coloured by their scores and showing where the
    flipped images disagree with the model;
-5. app_compare.png: the Compare tab, the chair's Flip+U (A, training) split against a finished B/L
-   run (B) from an unobserved test view, both scored;
+5. app_compare.png: the Compare tab, the chair's Flip+U (A) side by side with a finished B/L run (B)
+   from an unobserved test view, both scored;
 4. app_capture.png: a robot's drive-by capture of the turned chair (`export-scene --trajectory
    driveby`) trained with `--mirror-plane auto`: the Mirror tab's estimated plane, its confidence
    and the score-against-azimuth chart;
@@ -108,9 +108,6 @@ def compare_shot(args: Args) -> None:
             open_page(d, app.port, settle_s=5.0)
             tab(d, "Mirror")
             checkbox(d, "Show plane preview", False)
-            checkbox(d, "Show mirror plane", False)
-            tab(d, "Show")
-            checkbox(d, "true symmetry plane", False)
             snap_to(d, app, "test 3")
             time.sleep(1.0)
             tab(d, "Compare")
@@ -118,6 +115,9 @@ def compare_shot(args: Args) -> None:
             time.sleep(0.5)
             button(d, "Load run B")
             wait_until(lambda: app.compare.b is not None and app.compare.scores, 120, what="run B and its scores")
+            time.sleep(2.0)
+            choose(d, "Show", "side by side")
+            wait_until(lambda: app.compare.mode_dd.value == "side by side", 30, what="side by side on the server")
             time.sleep(20.0)  # the finest pass renders A and B
             (args.out / "app_compare.png").write_bytes(screenshot_png(d))
     finally:

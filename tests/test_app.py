@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import tyro
 
+from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.geometry import mirror_cameras_for_plane
 from flipviz.geometry.sphere import Sphere
@@ -225,6 +226,14 @@ def test_the_estimated_plane_is_shown_beside_the_dragged_one(app):
                 lambda m: m["type"] == "SetPositionMessage" and m["name"] == "/plane"
                 and np.allclose(m["position"], est.plane.point, atol=1e-4),
             )  # fmt: skip
+            # the typed fields show the plane in use (issue 26: they never did)
+            await c.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == c.gui["Plane normal"]["uuid"]
+                             and np.allclose(m["updates"]["value"], est.plane.normal, atol=2e-3))  # fmt: skip
+            # Estimate plane again on this run: answered at once, not a silent minutes-long re-estimate
+            n = len(c.messages)
+            await c.click("Estimate plane")
+            await c.wait_for(lambda m: "Already estimated when this run started" in str(m), start=n, timeout=5)
+            assert not app.mirror._estimating.locked()
 
     run(go())
 
@@ -284,6 +293,14 @@ def test_two_tabs_and_snap_to_view(app):
             assert not any(moved(m) for m in b.messages)  # only the clicker's camera moves
             uuid = a.gui["|error|"]["uuid"]
             await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid, start=n)
+            await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid
+                             and m["updates"].get("visible") is True, start=n)  # fmt: skip
+            # leaving the view: the Views panel drops its images (it kept the old snapped view's)
+            n = len(a.messages)
+            await a.send_camera((4.0, 4.0, 3.0))
+            await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid
+                             and m["updates"].get("visible") is False, start=n)  # fmt: skip
+            await a.wait_for(lambda m: "You left" in str(m), start=n)
         await asyncio.sleep(0.5)
 
     before, ids = set(app.views.clients), set()
@@ -301,10 +318,11 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
     b = open_run(tmp_path / "b")
     pos, size = (4.0, -4.0, 3.0), (96, 128)
 
-    def b_render() -> np.ndarray:  # B from the client's camera, as the app renders it
+    def b_render(width: int = size[1]) -> np.ndarray:  # B from the client's camera (its centre `width` columns)
         from viser_client import wxyz_look_at
 
         cam = camera_from_viser(wxyz_look_at(np.array(pos), np.zeros(3)), pos, 0.9, size[1], size[0])
+        cam = Camera(cam.c2w, width, cam.height, cam.focal)
         return np.clip(b.render(cam, ("rgb",))["rgb"], 0, 1) * 255
 
     def psnr(x, y) -> float:
@@ -346,9 +364,19 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             # the divider moves to a quarter of the width: a white line there
             n = len(c.messages)
             await c.set_value("Divider", 0.25)
-            img = jpeg((await c.wait_for(bg, start=n, timeout=30))["rgb_data"])[..., ::-1]
+            m = await c.wait_for(bg, start=n, timeout=30)
             x = round(0.25 * size[1])
+            img = jpeg(m["rgb_data"])[..., ::-1]
             assert img[body, x - 1 : x + 1].min() > 230 and psnr(img[body, x + 2 :], ref[body, x + 2 :]) > 28
+            assert m["depth_data"] is not None  # split is seen from your camera: each side carries its run's depth
+            # side by side: A | B, each the centre half of your view at full scale, and no depth (two crops have none)
+            n = len(c.messages)
+            await c.set_value("Show", "side by side")
+            m = await c.wait_for(bg, start=n, timeout=30)
+            img, half = jpeg(m["rgb_data"])[..., ::-1], size[1] // 2
+            assert img.shape[:2] == size and m["depth_data"] is None
+            assert psnr(img[body, half + 2 :], b_render(half)[body, 2:]) > 28
+            assert psnr(img[body, half + 2 :], b_render()[body, half + 2 :]) < 25  # not B's right half of the view
             # difference: |A - B| on the error scale; where both show the white background it is 0 (viridis' dark end)
             n = len(c.messages)
             await c.set_value("Show", "difference")
@@ -384,6 +412,10 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             while app.compare.video_path is None:
                 assert time.monotonic() - t < 60, app.compare.video_md.content
                 await asyncio.sleep(0.2)
+            # this client sits at keyframe 1 (it was added there): that frustum is hidden, keyframe 0's drawn
+            while [h.visible for h in app.compare._key_handles] != [True, False]:
+                assert time.monotonic() - t < 60, [h.visible for h in app.compare._key_handles]
+                await asyncio.sleep(0.2)
 
     from flipviz.viz import palette
 
@@ -400,6 +432,60 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
     assert frames[0].shape[0] >= 2 * 150  # a row for A and one for B, at the canvas's aspect (4:3)
     assert (app.compare.video_path.parent / "keyframes.json").is_file()
     app.compare.stop()
+
+
+def test_a_paused_app_goes_quiet(app):
+    """Issue 26: paused and settled, the server sends next to nothing (it re-sent the mirrors' poses, the
+    BA trajectories and the plot every half second: 37 kB/s on the chair)."""
+    from collections import Counter
+
+    async def go() -> tuple[int, Counter]:
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_gui("Pause")
+            app.pause()
+            t0 = time.monotonic()
+
+            def quiet_s() -> float:  # since the last frame: the view's passes, the last bake and poses are out
+                return time.monotonic() - (c.frames[-1][0] if c.frames else t0)
+
+            while quiet_s() < 6.0:  # (longer than the preview's 5 s bake period)
+                assert time.monotonic() - t0 < 90, f"the paused app never settled: {c.frames[-5:]}"
+                await asyncio.sleep(0.2)
+            n = len(c.frames)
+            await asyncio.sleep(4.0)  # a window to measure traffic in, not a wait for an event
+            window = c.frames[n:]
+            return sum(b for _, b, _ in window), Counter(k for _, _, kinds in window for k in kinds)
+
+    try:
+        sent, kinds = run(go())
+    finally:
+        app.resume()
+    assert sent < 1000, f"{sent} bytes in 4 s while paused: {dict(kinds)}"
+
+
+def test_train_b_next_to_the_running_a(app):
+    """Compare's "Train B next to this run": B/L trains on A's scene and views in its own folder beside A's."""
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))  # (viser resolves a client once its camera has arrived)
+            await c.wait_gui("Train B next to this run")
+            await c.set_value("B method", "bl")
+            await asyncio.sleep(0.2)
+            await c.click("Train B next to this run")
+            t = time.monotonic()
+            while app.compare.b is None or app.compare.b.trainer.step < 3:
+                assert time.monotonic() - t < 40, app.compare.status_md.content
+                await asyncio.sleep(0.2)
+
+    try:
+        run(go())
+        b = app.compare.b
+        assert b.training and b.trainer.cfg.method == "bl" and b.trainer.run_dir.name == f"{app._run_dir().name}-B-bl"
+        assert b.trainer.scene.name == app.setup.scene and b.trainer.run_dir.parent == app._run_dir().parent
+    finally:
+        app.compare.stop()
 
 
 def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_path):
@@ -558,3 +644,35 @@ def test_a_browser_cannot_name_folders_outside_the_roots_nor_oversize_values(app
             await until(lambda: app.train.config_dd.value in [str(i) for i in range(1, 9)], "dropdown not guarded")
 
     run(go())
+
+
+def test_every_colour_the_3d_view_draws_is_in_the_legend():
+    """Issue 26: magenta (novel cameras, keyframes) and others were drawn but not in the legend."""
+    from flipviz.viz import palette
+
+    drawn = {*palette.CAMERA.values(), palette.SPHERE, palette.MIRROR_PLANE, palette.TRUE_PLANE, palette.TRAJECTORY}
+    legend = {c for colours, _ in palette.LEGEND for c in colours}
+    assert drawn <= legend, drawn - legend
+    img = palette.legend_image()
+    for c in drawn:  # each swatch is in the image the Show tab displays
+        assert (img.reshape(-1, 3) == np.array(c, np.uint8)).all(-1).any(), c
+
+
+def test_the_render_share_is_a_fraction_of_the_time():
+    """Issue 26: "browser renders 115% of the time". A job longer than the window fills it, never more."""
+    import threading
+
+    from flipviz.viz.viser_render import RenderWorker
+
+    w, done = RenderWorker(duty=1.0), threading.Event()
+    try:
+        w.submit("job", lambda: (time.sleep(0.6), done.set()), priority=0)  # a 0.6 s render
+        assert done.wait(30)
+        t = time.monotonic()
+        while not w._spans:  # recorded just after the job returns
+            assert time.monotonic() - t < 10
+            time.sleep(0.01)
+        assert all(w.share(window_s=s) <= 1.0 for s in (0.05, 0.3, 0.6))  # (busy / window gave up to 12)
+        assert w.share(window_s=60.0) == pytest.approx(0.6 / 60.0, rel=0.2)
+    finally:
+        w.stop()

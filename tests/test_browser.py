@@ -196,6 +196,8 @@ def test_5_move_the_plane_and_score_it(app, browser):
     shot(browser, "5_plane_scored")
     checkbox(browser, "Show plane gizmo", False)
     button(browser, "Reset plane")
+    want = float(np.degrees(np.arctan2(*app.mirror.train_plane.normal[[1, 0]])))  # z is up
+    wait_until(lambda: abs(float(box.get_attribute("value")) - want) < 0.6, 20, what=f"the azimuth field back at {want:.1f}")
 
 
 def test_6_add_and_delete_a_novel_camera(app, browser):
@@ -205,6 +207,85 @@ def test_6_add_and_delete_a_novel_camera(app, browser):
     name = next(iter(app.novel.gizmos))
     button(browser, "Delete camera")
     wait_until(lambda: name not in app.novel.gizmos, 20, what="the camera deleted")
+
+
+def canvas(d, img: np.ndarray) -> np.ndarray:
+    """The 3D canvas's pixels in a screenshot `img` (the largest canvas of the page)."""
+    x, y, w, h = d.execute_script(
+        "const c = [...document.querySelectorAll('canvas')].sort((a, b) => b.width * b.height - a.width * a.height)[0];"
+        "const r = c.getBoundingClientRect(); const s = window.devicePixelRatio;"
+        "return [r.left * s, r.top * s, r.width * s, r.height * s].map(Math.round);"
+    )  # fmt: skip
+    return img[y : y + h, x : x + w]
+
+
+def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, tmp_path_factory):
+    """Issue 25: side by side is A | B, each the centre of your view at its full height and scale, with
+    no plane square and no depth-masked silhouette of a third image over them."""
+    import cv2
+
+    from flipviz.data.cameras import Camera
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.run import open_run, train
+    from flipviz.viz.viser_common import camera_from_viser
+
+    b_dir = app.cfg.out.parent / "b-bl"  # beside A's folder: inside the app's browse roots
+    train(TrainConfig(scene="chair", method="bl", res=32, steps=150, batch_rays=512, mirror_plane="official",
+                      images_every=0, no_rrd=True, out=b_dir))  # fmt: skip
+    tab(browser, "Train")
+    button(browser, "Pause")
+    wait_until(lambda: app.status == "paused", 30, what="A paused")  # A's render stays put while compared
+    overlays = ("input cameras", "test cameras (unobserved)", "mirrored cameras (BA)", "BA trajectories", "fitted sphere")
+    tab(browser, "Show")
+    for name in overlays:  # the frustums drawn over the view: the pixels compared are the background image's
+        checkbox(browser, name, False)
+    tab(browser, "Compare")
+    browser.find_element("xpath", "//label[normalize-space()='Or a folder']/following::input[1]").send_keys(str(b_dir))
+    wait_until(lambda: app.compare.path_txt.value == str(b_dir), 10, what="the folder typed")
+    button(browser, "Load run B")
+    wait_until(lambda: app.compare.b is not None, 60, what="run B")
+    assert app.mirror.show_plane.value is False  # the plane square is off while Compare draws the view
+    wait_until(lambda: by_label(browser, "Show").get_attribute("value") == "split", 20, what="split, set by the server")
+    choose(browser, "Show", "side by side")
+    b = open_run(b_dir)
+    client = next(iter(app.server.get_clients().values()))
+
+    def halves() -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The canvas at 2 x 80 columns, and A's and B's own renders of the centre half of the view."""
+        img = canvas(browser, shot(browser, "6b_side_by_side"))
+        h = round(160 * img.shape[0] / img.shape[1])
+        cam = client.camera
+        full = camera_from_viser(cam.wxyz, cam.position, float(cam.fov), 160, h)
+        half = Camera(full.c2w, 80, h, full.focal)  # the centre 80 columns, same focal: A's and B's crop
+        a, bb = app.render(half, ("rgb",))["rgb"], b.render(half, ("rgb",))["rgb"]
+        return cv2.resize(img, (160, h), interpolation=cv2.INTER_AREA).astype(float), a * 255, bb * 255
+
+    def agreement(got: np.ndarray, want: np.ndarray) -> tuple[float, float]:
+        """Fractions of all pixels and of the object's pixels (below the label rows) within 30 of the render."""
+        rows = slice(want.shape[0] // 5, None)
+        ok = np.abs(got[rows] - want[rows]).mean(-1) < 30
+        obj = want[rows].min(-1) < 200
+        return float(ok.mean()), float(ok[obj].mean())
+
+    def side_by_side_settled():
+        img, a, bb = halves()
+        left, right = agreement(img[:, :78], a[:, :78]), agreement(img[:, 82:], bb[:, 2:])
+        return (left, right) if min(left[0], right[0]) > 0.9 and min(left[1], right[1]) > 0.75 else None
+
+    try:
+        left, right = wait_until(side_by_side_settled, 120, every=2.0, what="A | B, each its own render")
+    finally:
+        img, a, bb = halves()
+        print("agreement A", agreement(img[:, :78], a[:, :78]), "B", agreement(img[:, 82:], bb[:, 2:]))
+    assert min(left[0], right[0]) > 0.9 and min(left[1], right[1]) > 0.75
+    choose(browser, "Show", "off")
+    wait_until(lambda: app.mirror.show_plane.value, 10, what="the plane square back")
+    tab(browser, "Show")
+    for name in overlays:
+        checkbox(browser, name, True)
+    tab(browser, "Train")
+    button(browser, "Resume")
+    wait_until(lambda: app.status == "running", 30, what="A running again")
 
 
 def test_7_restart_with_bl(app, browser):

@@ -46,6 +46,7 @@ class ViserTestClient:
         self.ws: Any = None
         self.messages: list[dict] = []
         self.gui: dict[str, dict] = {}  # label -> creation message (the latest one)
+        self.frames: list[tuple[float, int, list[str]]] = []  # (arrival time, bytes, message types) per frame
         self._reader: asyncio.Task | None = None
         self._new = asyncio.Event()
 
@@ -64,7 +65,9 @@ class ViserTestClient:
     async def _read(self) -> None:
         try:
             async for raw in self.ws:
-                for m in decode_frame(raw):
+                msgs = decode_frame(raw)
+                self.frames.append((time.monotonic(), len(raw), [m.get("type", "?") for m in msgs]))
+                for m in msgs:
                     self.messages.append(m)
                     props = m.get("props")
                     if "uuid" in m and isinstance(props, dict) and props.get("label"):

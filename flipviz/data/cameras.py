@@ -78,6 +78,10 @@ class Camera:
         height = round(self.height * width / self.width) if height is None else height
         return replace(self, width=int(width), height=int(height), focal=self.focal * width / self.width)
 
+    def cropped(self, width: int) -> "Camera":
+        """The centre `width` columns of this view: same pose, focal and height."""
+        return replace(self, width=int(width))
+
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World points (P, 3) -> integer pixel (row, column) (P, 2), and (P,) bool: in front of the
         camera and inside the image. Rows and columns are valid only where the flag is set."""

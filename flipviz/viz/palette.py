@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+import cv2
 import matplotlib
 import numpy as np
 
@@ -27,15 +28,6 @@ MIRROR_PLANE: RGB = CAMERA["mirror"]
 TRUE_PLANE: RGB = CAMERA["mirror_true"]
 SPHERE: RGB = (120, 160, 255)
 TRAJECTORY: RGB = CAMERA["mirror"]
-
-LEGEND = (  # (emoji square, what), shown in the app; the squares match the colours above
-    ("🟦", "input cameras"),
-    ("⬛", "unobserved test cameras"),
-    ("🟧", "mirrored cameras (BA-refined) and the mirror plane"),
-    ("🟪", "exact reflections and the true symmetry plane"),
-    ("🟫", "Upper-bound cameras"),
-    ("🟥🟨🟩", "mirror scores: contradicts / partly / agrees with the model"),
-)
 
 def hex_color(rgb: RGB) -> str:
     """'#rrggbb' for web widgets (charts)."""
@@ -71,7 +63,6 @@ def score_color(psnr_db: float) -> RGB:
 @lru_cache(maxsize=32)
 def colorbar(lo: float, hi: float, label: str, name: str = SCALAR_CMAP, width: int = 320) -> np.ndarray:
     """A horizontal colour bar with its range and label, uint8 RGB (about 46 x width)."""
-    import cv2
 
     bar = np.repeat(colormap(np.linspace(lo, hi, width)[None], lo, hi, name), 14, axis=0)
     canvas = np.full((46, width, 3), 255, np.uint8)
@@ -84,3 +75,27 @@ def colorbar(lo: float, hi: float, label: str, name: str = SCALAR_CMAP, width: i
     (w, _), _ = cv2.getTextSize(label, font, scale, 1)
     cv2.putText(canvas, label, ((width - w) // 2, 43), font, scale, ink, 1, cv2.LINE_AA)
     return canvas
+
+
+LEGEND: tuple[tuple[tuple[RGB, ...], str], ...] = (  # (colour(s), what): every colour the 3D view draws
+    ((CAMERA["input"],), "input cameras"),
+    ((CAMERA["test"],), "unobserved test cameras"),
+    ((CAMERA["mirror"],), "mirrored cameras (BA-refined), their trails, the mirror plane"),
+    ((CAMERA["mirror_init"],), "mirrored cameras for a plane you moved (preview)"),
+    ((CAMERA["mirror_true"],), "exact reflections, the true symmetry plane"),
+    ((CAMERA["upper"],), "Upper-bound cameras"),
+    ((CAMERA["novel"],), "your novel cameras and keyframes"),
+    ((SPHERE,), "the fitted camera sphere"),
+    (tuple(score_color(db) for db in (SCORE_RANGE[0], sum(SCORE_RANGE) / 2, SCORE_RANGE[1])), "mirror scores: contradicts / partly / agrees"),
+)
+
+
+def legend_image(width: int = 360, row: int = 22) -> np.ndarray:
+    """The legend as an image (uint8 RGB): a swatch of each colour, exactly as drawn, and what it marks."""
+    img = np.full((row * len(LEGEND) + 4, width, 3), 255, np.uint8)
+    for i, (colours, what) in enumerate(LEGEND):
+        y = 2 + i * row
+        for j, c in enumerate(colours):
+            img[y + 4 : y + row - 4, 4 + j * 12 : 4 + (j + 1) * 12] = c
+        cv2.putText(img, what, (48, y + row - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (30, 30, 30), 1, cv2.LINE_AA)
+    return img

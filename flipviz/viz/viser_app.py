@@ -180,12 +180,11 @@ class App(Observer):
         self._hist_step: list[float] = []
         self._hist_psnr: list[float] = []
         self._closing = threading.Event()
-        self._busy_mark, self._render_share = (time.monotonic(), 0.0), 0.0
         self._ui_thread = threading.Thread(target=self._ui_loop, name="flipviz-ui", daemon=True)
         self._build_gui()
         self.views = ViewportRenderer(
             self.worker, self.render, lambda: self.status == "running", preview_shown=lambda: self.preview.on,
-            depth_range=self._depth_range, max_width=cfg.view_width, on_unsnap=self.scene.unhide,
+            depth_range=self._depth_range, max_width=cfg.view_width, on_unsnap=self._on_unsnap,
             show_preview=self.preview.set_visible, compare=self.compare.compose,
         )  # fmt: skip
         self.server.on_client_connect(self._on_connect)
@@ -195,6 +194,7 @@ class App(Observer):
     def _build_gui(self) -> None:
         gui = self.server.gui
         gui.configure_theme(control_width="large", show_share_button=False, brand_color=palette.CAMERA["mirror"])
+        gui.main_panel.dock_right()  # beside the 3D view, not over it: the whole canvas is seen (side by side's B)
         tabs = gui.add_tab_group()
         with tabs.add_tab("Train", viser.Icon.PLAYER_PLAY):
             self.train = TrainPanel(self.server, self.pause, self.resume, self.restart_with)
@@ -209,18 +209,37 @@ class App(Observer):
         with tabs.add_tab("Compare", viser.Icon.LAYOUT_COLUMNS):
             self.compare = ComparePanel(
                 self.server, self, lambda: train_config(self.cfg), self._run_dir, self._scene, self._run_folders,
-                self.browse_roots, on_change=lambda: self.views.request_all(),
+                self.browse_roots, on_change=lambda: self.views.request_all(), on_shown=self._compare_shown,
             )  # fmt: skip
         with tabs.add_tab("Show", viser.Icon.EYE):
-            gui.add_markdown("**Colours**\n\n" + "\n".join(f"- {sq} {what}" for sq, what in palette.LEGEND))
+            gui.add_image(palette.legend_image(), label="Colours", format="png")
             with gui.add_folder("3D preview"):
                 self.preview = LivePreview(
                     self.server, self.worker, self._bake, lambda: self.status == "running", lambda: self.step
                 )
             with gui.add_folder("Scene"):
-                for g, (label, _) in GROUPS.items():
-                    cb = gui.add_checkbox(label, self.scene.visible[g])
+                self.group_boxes = {g: gui.add_checkbox(label, self.scene.visible[g]) for g, (label, _) in GROUPS.items()}
+                for g, cb in self.group_boxes.items():
                     cb.on_update(lambda ev, g=g: self.scene.set_visible(g, ev.target.value))
+        self._hidden_for_compare: list[viser.GuiCheckboxHandle] = []
+
+    def _on_unsnap(self) -> None:
+        """A browser's camera left its snapped view: the frustums near it and the Views panel's images go."""
+        self.scene.unhide()
+        self.snap.clear()
+
+    def _compare_shown(self, shown: bool) -> None:
+        """While Compare draws the views, the translucent plane squares are turned off (they would wash
+        over both runs); they come back when it stops. The user may turn them on meanwhile."""
+        if shown:
+            boxes = (self.mirror.show_plane, self.group_boxes["true_plane"])
+            self._hidden_for_compare = [cb for cb in boxes if cb.value]
+            for cb in self._hidden_for_compare:
+                cb.value = False
+        else:
+            for cb in self._hidden_for_compare:
+                cb.value = True
+            self._hidden_for_compare = []
 
     def _set_initial_camera(self, center: np.ndarray, radius: float) -> None:
         """New tabs start outside the camera sphere, above the camera ring, looking at its centre (z up)."""
@@ -483,6 +502,9 @@ class App(Observer):
                     self.mirror.follow_training(plane)
                 self.train.set_controls(self.status)
                 self._update_progress(step_ev)
+                if self.compare.keyframes and self.setup is not None:
+                    cams = [c.camera.position for c in self.server.get_clients().values()]
+                    self.compare.hide_keyframes_at(cams, 0.05 * float(self.setup.sphere_radius))
             except Exception:
                 log.exception("UI update failed")
 
@@ -500,13 +522,9 @@ class App(Observer):
         self.preview.request(delay=1.0)
 
     def _update_progress(self, ev: StepEvent | None) -> None:
-        now, busy = time.monotonic(), self.worker.busy_s
-        t0, b0 = self._busy_mark
-        if now - t0 > 5.0:
-            self._render_share, self._busy_mark = (busy - b0) / (now - t0), (now, busy)
         trainer = self.trainer
         run_dir = str(trainer.run_dir) if trainer is not None and self.setup is not None else None
-        self.train.show_progress(self.setup, self.status, ev, self._test_psnr, self._render_share, self.message, run_dir)
+        self.train.show_progress(self.setup, self.status, ev, self._test_psnr, self.worker.share(), self.message, run_dir)
 
 
 def run_app(cfg: AppConfig) -> None:

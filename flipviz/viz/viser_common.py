@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import viser.transforms as vtf
 
-from flipviz.data.cameras import Camera
+from flipviz.data.cameras import Camera, pixel_directions
 from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
 from flipviz.viz import palette
@@ -125,3 +125,15 @@ def resize_nearest(img: np.ndarray, width: int, height: int) -> np.ndarray:
     rows = np.minimum((np.arange(height) + 0.5) * h / height, h - 1).astype(int)
     cols = np.minimum((np.arange(width) + 0.5) * w / width, w - 1).astype(int)
     return img[rows][:, cols]
+
+
+FAR_DEPTH = 100.0  # depth given to background pixels, behind every scene element
+
+
+def view_depth(cam: Camera, out: dict) -> np.ndarray:
+    """The renderer's ray distance -> depth along the view axis (viser composites the background image
+    with it, so frustums behind the object are hidden); background pixels far. (H, W) float32."""
+    d = pixel_directions(cam.width, cam.height, cam.focal)  # z = -1
+    z = out["depth"].reshape(-1) / np.linalg.norm(d, axis=-1)
+    z = np.where(out["opacity"].reshape(-1) > 0.5, z, FAR_DEPTH)
+    return z.reshape(cam.height, cam.width).astype(np.float32)

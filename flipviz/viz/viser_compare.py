@@ -30,14 +30,14 @@ from flipviz.data.cameras import Camera
 from flipviz.data.dataset import SceneData
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
-from flipviz.files import inside_roots
+from flipviz.files import inside_roots, next_free
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import METHOD_LABELS, METHODS, TrainConfig
 from flipviz.training.evaluate import image_psnr
 from flipviz.viz import palette
 from flipviz.viz.camera_path import KEYFRAMES_FILE, write_keyframes
 from flipviz.viz.run_view import RunView
-from flipviz.viz.viser_common import camera_from_viser, error_map, to_viser_pose
+from flipviz.viz.viser_common import camera_from_viser, error_map, to_viser_pose, view_depth
 from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
 
 log = logging.getLogger("flipviz.app")
@@ -49,12 +49,11 @@ MAX_FRAMES = 2000  # frames of a camera-path video
 MAX_KEYFRAMES = 100
 
 
-def split_image(a: np.ndarray, b: np.ndarray, divider: float) -> np.ndarray:
-    """A left of the divider (a fraction of the width), B right of it, a white line between (uint8)."""
-    w = a.shape[1]
-    x = int(round(np.clip(divider, 0.0, 1.0) * w))
+def split_image(a: np.ndarray, b: np.ndarray, x: int, line: bool = True) -> np.ndarray:
+    """A's columns left of x, B's from x on (same shapes); a white line between when `line` (uint8 images)."""
     out = np.concatenate([a[:, :x], b[:, x:]], axis=1)
-    out[:, max(0, x - 1) : min(w, x + 1)] = 255
+    if line:
+        out[:, max(0, x - 1) : min(out.shape[1], x + 1)] = 255
     return out
 
 
@@ -96,8 +95,8 @@ class RunB:
     def name(self) -> str:
         return f"{METHOD_LABELS[self.trainer.cfg.method]} ({self.trainer.run_dir.name})"
 
-    def render(self, camera: Camera) -> dict:
-        return self.trainer.render(camera)
+    def render(self, camera: Camera, outputs=("rgb", "depth", "opacity")) -> dict:
+        return self.trainer.render(camera, outputs)
 
     def stop(self) -> None:
         if self.thread is not None and self.thread.is_alive():
@@ -111,11 +110,12 @@ class ComparePanel:
     def __init__(
         self, server: viser.ViserServer, run: RunView, run_config: Callable[[], TrainConfig],
         run_dir: Callable[[], Path | None], scene: Callable[[], SceneData | None], search: Callable[[], list[Path]],
-        roots: Callable[[], list[Path]], on_change: Callable[[], None],
+        roots: Callable[[], list[Path]], on_change: Callable[[], None], on_shown: Callable[[bool], None] = lambda on: None,
     ) -> None:  # fmt: skip
         gui = server.gui
         self.server, self.run, self.run_config, self.run_dir, self.scene = server, run, run_config, run_dir, scene
-        self.search, self.roots, self.on_change = search, roots, on_change
+        self.search, self.roots, self.on_change, self.on_shown = search, roots, on_change, on_shown
+        self.shown = False  # whether the views show the comparison (a run B and a mode other than off)
         self.b: RunB | None = None
         self._note = NO_B  # what the tab says while there is no B (loading, or why it failed)
         self._lock = threading.Lock()
@@ -147,7 +147,7 @@ class ComparePanel:
         self.refresh_btn.on_click(lambda _: self.refresh())
         self.load_btn.on_click(lambda _: self._load_chosen())
         self.train_btn.on_click(lambda _: self.train_b(self.method_dd.value))
-        self.mode_dd.on_update(lambda _: self.on_change())
+        self.mode_dd.on_update(lambda _: self._changed())
         self.divider.on_update(lambda _: self.on_change())
         self.add_key_btn.on_click(self._add_key)
         self.clear_keys_btn.on_click(lambda _: self.clear_keyframes())
@@ -213,9 +213,18 @@ class ComparePanel:
         if old is not None:
             old.stop()
         self.scores.clear()
-        if self.mode_dd.value == "off":
-            self.mode_dd.value = "split"
         self.show_status()
+        if self.mode_dd.value == "off":
+            self.mode_dd.value = "split"  # (its callback asks the views again)
+        else:
+            self._changed()
+
+    def _changed(self) -> None:
+        """B or the mode changed: tell the app when the comparison appears or goes, and re-render the views."""
+        shown = self.b is not None and self.mode_dd.value != "off"
+        if shown != self.shown:
+            self.shown = shown
+            self.on_shown(shown)
         self.on_change()
 
     def clear(self) -> None:
@@ -249,9 +258,11 @@ class ComparePanel:
             self.status_md.content = text
 
     # ---- the browsers' views --------------------------------------------------------------------
-    def compose(self, cam: Camera, out_a: dict, snapped) -> tuple[np.ndarray, tuple | None] | None:
-        """A view's background while Compare is on (None: not on, the normal view). Called by the
-        render worker with A's render from `cam`; renders B from the same camera."""
+    def compose(self, cam: Camera, out_a: dict, snapped) -> tuple[np.ndarray, tuple | None, np.ndarray | None] | None:
+        """A view's background, its colour scale and its depth while Compare is on (None: not on, the
+        normal view). Called by the render worker with A's render from `cam`; renders B from the same
+        camera. The depth is each pixel's own run's where the image is seen from `cam` (split), and none
+        where it is not: side by side puts two crops beside each other, a difference has no surface."""
         b = self.b
         if b is None or self.mode_dd.value == "off":
             return None
@@ -261,20 +272,20 @@ class ComparePanel:
         if snapped is not None and snapped.reference is not None:
             self._score(snapped, b)
         if mode == "side by side":
-            half = cam.resized(max(8, cam.width // 2), cam.height)  # the centre of the view, full height
-            ra, rb = self.run.render(half, ("rgb",)), b.render(half)
+            half = cam.cropped(max(8, cam.width // 2))  # the centre of the view, at its full height and scale
+            ra, rb = self.run.render(half, ("rgb",)), b.render(half, ("rgb",))
             if ra is None:
                 return None
             img = np.concatenate([label(to_uint8(ra["rgb"]), a_name), label(to_uint8(rb["rgb"]), b_name)], axis=1)
             img[:, half.width - 1 : half.width + 1] = 255
-            return img, None
+            return img, None, None
         out_b = b.render(cam)
         if mode == "difference":
-            img = error_map(out_a["rgb"], out_b["rgb"])
-            return label(img, "|A - B|"), (*palette.ERROR_RANGE, "|A - B|, mean over RGB")
-        img = split_image(to_uint8(out_a["rgb"]), to_uint8(out_b["rgb"]), float(bounded(self.divider.value, 0.0, 1.0, 0.5)))
-        x = int(round(bounded(self.divider.value, 0.0, 1.0, 0.5) * img.shape[1]))  # the names on either side of the divider
-        return label(label(img, a_name, x - 4, align_right=True), b_name, x + 4), None
+            return label(error_map(out_a["rgb"], out_b["rgb"]), "|A - B|"), (*palette.ERROR_RANGE, "|A - B|, mean over RGB"), None
+        x = int(round(bounded(self.divider.value, 0.0, 1.0, 0.5) * cam.width))
+        img = split_image(to_uint8(out_a["rgb"]), to_uint8(out_b["rgb"]), x)
+        depth = split_image(view_depth(cam, out_a), view_depth(cam, out_b), x, line=False)
+        return label(label(img, a_name, x - 4, align_right=True), b_name, x + 4), None, depth
 
     def _score(self, snapped, b: RunB) -> None:
         """Both runs against the snapped view's ground truth, once per pair of steps (not per render pass)."""
@@ -306,9 +317,17 @@ class ComparePanel:
         wxyz, pos = to_viser_pose(cam.c2w)
         self._key_handles.append(self.server.scene.add_camera_frustum(
             f"/keyframes/{i:03d}", fov=cam.fov_y, aspect=cam.width / cam.height, scale=0.15,
-            color=palette.CAMERA["novel"], wxyz=wxyz, position=pos,
-        ))  # fmt: skip
+            color=palette.CAMERA["novel"], wxyz=wxyz, position=pos, visible=False,
+        ))  # fmt: skip (shown once no browser's camera sits on it: hide_keyframes_at)
         self.keys_md.content = f"**{len(self.keyframes)}** keyframe(s)" + ("" if len(self.keyframes) > 1 else ": add one more")
+
+    def hide_keyframes_at(self, positions: list[np.ndarray], radius: float) -> None:
+        """A keyframe's frustum where a browser's camera is would frame that whole view in magenta: it is
+        hidden while any camera is within `radius` of it (a keyframe is added at your own pose)."""
+        for h, key in zip(self._key_handles, self.keyframes):
+            show = all(np.linalg.norm(key.center - p) >= radius for p in positions)
+            if h.visible != show:
+                h.visible = show
 
     def clear_keyframes(self) -> None:
         for h in self._key_handles:

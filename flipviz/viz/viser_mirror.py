@@ -12,6 +12,7 @@ flipped image: low where the symmetry assumption fails.
 from __future__ import annotations
 
 import threading
+import time
 from typing import Callable
 
 import numpy as np
@@ -148,6 +149,7 @@ class MirrorLesson:
         self.trail: list[np.ndarray] = []  # the tip of the refined plane's normal, step after step
         self.refining = False  # this run's training moves the plane
         self.trains_mirrors, self.dropped = True, False
+        self.no_mirror_note = ""  # what the plane shown for a method without mirrors is
 
     # ---- per run ----------------------------------------------------------------------------
     def build(self, setup: SetupEvent) -> None:
@@ -161,12 +163,15 @@ class MirrorLesson:
             plane = setup.plane
             if plane is None and setup.plane_estimate is not None:  # estimated, dropped: not confident
                 plane = setup.plane_estimate.plane
-            elif plane is None:  # a method without mirrors: show the plane it would use
+            elif plane is None:  # a method without mirrors: the plane a Flip run would start from, where known
+                preset = str(setup.settings.get("mirror_plane", "official"))
                 try:
-                    preset = str(setup.settings.get("mirror_plane", "official"))
                     plane = mirror_plane(preset, self.inputs, self.sphere, setup.true_plane)
-                except Exception:
+                    self.no_mirror_note = "this is the plane a Flip run with these settings starts from."
+                except Exception:  # auto: only an estimate knows it
                     plane = mirror_plane("opposite", self.inputs, self.sphere)
+                    self.no_mirror_note = (f"a Flip run would estimate its plane (`--mirror-plane {preset}`: *Estimate "
+                                           "plane* below); this one only faces away from the inputs (`opposite`).")  # fmt: skip
             self.train_plane = self.start_plane = plane
             self.true_plane, self.trail = setup.true_plane, []
             self.refining = setup.plane is not None and bool(setup.settings.get("refine_plane"))
@@ -214,7 +219,20 @@ class MirrorLesson:
         if self.quad is not None:
             self.quad.visible = bool(self.show_plane.value)
 
+    def _azimuth(self, plane: Plane) -> float:
+        """The azimuth of the plane's normal about up, in the slider's range and step."""
+        return round((azimuth_deg(plane.normal, self.up) + 180.0) % 360.0 - 180.0, 1)
+
+    def _show_typed(self, plane: Plane) -> None:
+        """The "Type the plane" fields show the plane in use."""
+        self.azimuth.value = self._azimuth(plane)  # (its callback sees the plane's own azimuth: no change)
+        self.point_in.value = tuple(round(float(x), 3) + 0.0 for x in plane.point)
+        self.normal_in.value = tuple(round(float(x), 3) + 0.0 for x in plane.normal)
+
     def _typed_azimuth(self) -> None:
+        plane = self.plane
+        if plane is not None and abs(self._azimuth(plane) - float(self.azimuth.value)) < 0.05:
+            return  # the field shows the plane in use, nobody typed a new azimuth
         if self.sphere is not None:
             a = np.radians(float(self.azimuth.value))
             u, v = horizontal_basis(self.up)
@@ -250,8 +268,10 @@ class MirrorLesson:
             self.train_plane = plane  # Reset plane goes back to the plane training uses now
             if self.quad is not None:
                 self.quad.wxyz, self.quad.position = plane_wxyz(plane), plane.point
-            if self.gizmo is not None and not self.moved:
+            if self.gizmo is not None and not self.moved:  # the gizmo, the typed fields and the plane in use follow
+                self.plane = plane
                 self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane), plane.point
+                self._show_typed(plane)
             if len(self.trail) > 1:
                 segs = np.stack([np.stack(self.trail[:-1]), np.stack(self.trail[1:])], axis=1)
                 self.server.scene.add_line_segments("/plane_trail", segs, palette.MIRROR_PLANE, thickness=3.0,
@@ -309,6 +329,7 @@ class MirrorLesson:
                 for h in self.preview:
                     h.color = palette.CAMERA["mirror_init"]  # not scored for this plane yet
         self._set_preview_visible()
+        self._show_typed(plane)
         p, n = np.round(plane.point, 2) + 0.0, np.round(plane.normal, 2) + 0.0  # + 0.0: no "-0.00"
         same = self.train_plane is not None and np.allclose(plane.point, self.train_plane.point) and np.allclose(
             plane.normal, self.train_plane.normal
@@ -321,7 +342,7 @@ class MirrorLesson:
             )
         elif not self.trains_mirrors:
             self.plane_text.content = where + (
-                " - this method trains on **no** mirrored view; this is the plane a Flip run would use."
+                " - this method trains on **no** mirrored view; " + self.no_mirror_note
             )
         else:
             trained = " - where training started the plane." if self.refining else " - the training plane."
@@ -340,19 +361,40 @@ class MirrorLesson:
 
     # ---- the estimated plane ----------------------------------------------------------------
     def _start_estimate(self) -> None:
+        setup = self.run.setup
+        if setup is not None and setup.plane_estimate is not None and self.estimate is setup.plane_estimate:
+            self.show_estimate(self.estimate)  # the same inputs give the same plane: say so, at once
+            self.est_text.content = "_Already estimated when this run started (the same inputs give the same plane):_ " + (
+                self.est_text.content)  # fmt: skip
+            return
         if not self._estimating.acquire(blocking=False):
             return  # one estimate at a time
-        self.est_text.content = "_Estimating: a short B/L fit of the inputs, then the plane search (10-20 s)..._"
         self.est_btn.disabled = True
+        done = threading.Event()
+
+        def tick() -> None:  # the time so far, every second: training shares the CPU, so it may take minutes
+            t0 = time.monotonic()
+            while not done.is_set():
+                self.est_text.content = (f"_Estimating: a short B/L fit of the inputs, then the plane search... "
+                                         f"{time.monotonic() - t0:.0f} s (10-20 s on an idle CPU)_")  # fmt: skip
+                done.wait(1.0)
 
         def work() -> None:
+            clock = threading.Thread(target=tick, name="flipviz-estimate-clock", daemon=True)
+            clock.start()
             try:
-                self.show_estimate(self.run.estimate_plane())
+                est, error = self.run.estimate_plane(), None
             except Exception as e:  # noqa: BLE001 - shown, never fatal
-                self.est_text.content = f"_Cannot estimate a plane: {e}_"
+                est, error = None, e
             finally:
+                done.set()
+                clock.join()  # its last line never lands over the result
                 self.est_btn.disabled = False
                 self._estimating.release()
+            if error is None:
+                self.show_estimate(est)
+            else:
+                self.est_text.content = f"_Cannot estimate a plane: {error}_"
 
         threading.Thread(target=work, name="flipviz-plane-estimate", daemon=True).start()
 

@@ -150,10 +150,11 @@ class SnapToView:
         self.select = gui.add_dropdown("View", ("(none)",))
         self.snap_btn = gui.add_button("Snap to view", icon=viser.Icon.FOCUS_2, hint="Moves your camera there")
         self.text = gui.add_markdown("_Pick a view and snap to it._")
-        self.gt = gui.add_image(BLANK, label="Ground truth (flipped for mirrors)", format="jpeg")
-        self.pred = gui.add_image(BLANK, label="Render", format="jpeg")
-        self.err = gui.add_image(BLANK, label="|error|", format="jpeg")
-        self.beta2 = gui.add_image(BLANK, label="beta^2", format="jpeg")
+        self.gt = gui.add_image(BLANK, label="Ground truth (flipped for mirrors)", format="jpeg", visible=False)
+        self.pred = gui.add_image(BLANK, label="Render", format="jpeg", visible=False)
+        self.err = gui.add_image(BLANK, label="|error|", format="jpeg", visible=False)
+        self.beta2 = gui.add_image(BLANK, label="beta^2", format="jpeg", visible=False)
+        self.shown: str | None = None  # the view whose images the panel shows
         self.views: dict[str, tuple[str, int, Camera, np.ndarray | None]] = {}
         self.alphas: dict[str, np.ndarray | None] = {}  # the true silhouettes of the test views
         self.snap_btn.on_click(lambda ev: self.snap(self.select.value, ev.client))
@@ -202,6 +203,7 @@ class SnapToView:
         if out is None:
             return
         gt = v[3]
+        self.shown = key
         self.pred.image = upscale(to_uint8(out["rgb"]), 320)
         b2 = out.get("beta2")
         self.beta2.image = upscale(palette.colormap(b2, *palette.BETA2_RANGE), 320) if b2 is not None else BLANK
@@ -215,6 +217,17 @@ class SnapToView:
             self.text.content = text
         else:
             self.text.content = f"**{key}** at step {self.run.step} (no ground truth)"
+        for img, shown in ((self.pred, True), (self.beta2, b2 is not None), (self.gt, gt is not None), (self.err, gt is not None)):
+            img.visible = shown
+
+    def clear(self) -> None:
+        """A camera left the snapped view: its images go, so the panel never shows a view you are not at."""
+        if self.shown is None:
+            return
+        for img in (self.gt, self.pred, self.err, self.beta2):
+            img.visible = False
+        self.text.content = f"_You left **{self.shown}**. Pick a view and snap to it._"
+        self.shown = None
 
 
 def move_client_camera(client: viser.ClientHandle, cam: Camera, target: np.ndarray | None = None) -> None:

@@ -56,7 +56,7 @@ class LivePreview:
         self.worker.submit("preview-bake", self._bake, priority=BACKGROUND, delay=delay)
 
     def _bake(self) -> None:
-        if self.on:
+        if self.on and (self.baked is None or self.baked.get("step") != self.step()):  # the model changed since
             t = time.perf_counter()
             baked = self.bake_fn()
             if baked is not None:

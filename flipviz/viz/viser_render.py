@@ -19,6 +19,7 @@ or beta^2 in the view's own frame, blended as the client chooses.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import threading
 import time
@@ -29,7 +30,7 @@ from typing import Callable, Hashable
 import numpy as np
 import viser
 
-from flipviz.data.cameras import Camera, pixel_directions
+from flipviz.data.cameras import Camera
 from flipviz.data.images import to_uint8
 from flipviz.viz import palette
 from flipviz.viz.viser_common import (
@@ -39,6 +40,7 @@ from flipviz.viz.viser_common import (
     error_map,
     output_range,
     resize_nearest,
+    view_depth,
     visualize_output,
 )
 from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
@@ -65,6 +67,8 @@ class RenderWorker:
         self._seq = 0
         self._stop = False
         self.busy_s = 0.0  # total seconds spent in jobs
+        self._spans: collections.deque[tuple[float, float]] = collections.deque(maxlen=4096)  # recent jobs (start, end)
+        self._running_since: float | None = None  # the job in progress
         self._last_priority = 0
         self._background_at = 0.0  # background jobs wait until then (their share of the duty cycle)
         self.jobs_done = 0
@@ -116,12 +120,16 @@ class RenderWorker:
             fn = self._next()
             if fn is None:
                 return
-            t0 = time.perf_counter()
+            t0 = self._running_since = time.monotonic()
             try:
                 fn()
             except Exception:  # a failed render must never kill the worker
                 traceback.print_exc()
-            dt = time.perf_counter() - t0
+            t1 = time.monotonic()
+            with self._cv:
+                self._spans.append((t0, t1))
+                self._running_since = None
+            dt = t1 - t0
             self.busy_s += dt
             self.jobs_done += 1
             idle = dt * (1.0 - self.duty) / self.duty
@@ -130,6 +138,13 @@ class RenderWorker:
                 continue
             with self._cv:
                 self._cv.wait_for(lambda: self._stop, timeout=idle)
+
+    def share(self, window_s: float = 10.0) -> float:
+        """The fraction of the last `window_s` seconds spent in jobs, the one running now included (0..1)."""
+        now = time.monotonic()
+        with self._cv:
+            spans = [*self._spans, *([(self._running_since, now)] if self._running_since is not None else [])]
+        return sum(max(0.0, b - max(a, now - window_s)) for a, b in spans) / window_s
 
     def stop(self) -> None:
         with self._cv:
@@ -141,7 +156,6 @@ class RenderWorker:
 
 MIN_WIDTH, MAX_WIDTH = 128, 1920  # "Max resolution": the finest pass of a view (bounded on the server)
 MIN_ASPECT, MAX_ASPECT = 0.25, 4.0  # a canvas outside these is rendered at the nearest bound
-FAR_DEPTH = 100.0  # depth given to background pixels, behind every scene element
 
 
 @dataclass
@@ -189,7 +203,9 @@ class ViewportRenderer:
         refresh_s: float = 5.0,
         on_unsnap: Callable[[], None] = lambda: None,
         show_preview: Callable[[int, bool], None] = lambda client_id, visible: None,
-        compare: Callable[[Camera, dict, Snapped | None], tuple[np.ndarray, tuple | None] | None] = lambda c, o, s: None,
+        compare: Callable[[Camera, dict, Snapped | None], tuple[np.ndarray, tuple | None, np.ndarray | None] | None] = (
+            lambda c, o, s: None
+        ),
     ) -> None:
         self.worker = worker
         self.render = render  # (camera, outputs) -> dict or None when no model is ready
@@ -321,10 +337,12 @@ class ViewportRenderer:
             return False
         return bool(np.allclose(c2w[:3, 3], cam.c2w[:3, 3], atol=1e-3) and np.allclose(c2w[:3, :3], cam.c2w[:3, :3], atol=1e-3))
 
-    def _render(self, client_id: int, version: int, pass_idx: int) -> None:
+    def _render(self, client_id: int, version: int, pass_idx: int, refresh: bool = False) -> None:
         view = self.clients.get(client_id)
         if view is None or not view.enabled or view.version != version:
             return  # gone, switched off, or the camera moved since: a newer request is queued
+        if refresh and not self.is_training():
+            return  # a refresh for a model that no longer changes (paused, finished): nothing new to send
         moving = time.monotonic() - view.last_move < self.settle_s
         if moving and self.preview_shown():  # the browser draws the 3D preview meanwhile
             return self.request(client_id, delay=self.settle_s, debounce=True)
@@ -338,8 +356,8 @@ class ViewportRenderer:
         out = self.render(cam, outputs=("rgb", "depth", "opacity", "beta2"))
         if out is None or view.version != version or client_id not in self.clients:
             return
-        image, bar = self.compare(cam, out, view.snapped) or self._compose(view, cam, out)
-        depth = self._z_depth(cam, out) if image.shape[:2] == out["depth"].shape[:2] else None
+        composed = self.compare(cam, out, view.snapped)  # the Compare tab's view (it says its own depth), or ours
+        image, bar, depth = composed if composed is not None else (*self._compose(view, cam, out), view_depth(cam, out))
         try:
             view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=depth)
             view.gui["colorbar"].visible = bar is not None
@@ -358,7 +376,7 @@ class ViewportRenderer:
             self.worker.submit(("view", client_id), lambda: self._render(client_id, version, pass_idx + 1), priority=1)
         elif self.is_training():  # keep the still view up to date with training
             self.worker.submit(
-                ("view", client_id), lambda: self._render(client_id, version, pass_idx), priority=BACKGROUND,
+                ("view", client_id), lambda: self._render(client_id, version, pass_idx, refresh=True), priority=BACKGROUND,
                 delay=self.refresh_s,
             )
 
@@ -385,11 +403,3 @@ class ViewportRenderer:
         a = float(view.blend)
         rgb[:, x0 : x0 + w] = to_uint8((1.0 - a) * ref + a * np.clip(mine, 0, 1))
         return rgb, None
-
-    @staticmethod
-    def _z_depth(cam: Camera, out: dict) -> np.ndarray:
-        """The renderer's ray distance -> depth along the view axis (viser's compositing); background far."""
-        d = pixel_directions(cam.width, cam.height, cam.focal)  # z = -1
-        z = out["depth"].reshape(-1) / np.linalg.norm(d, axis=-1)
-        z = np.where(out["opacity"].reshape(-1) > 0.5, z, FAR_DEPTH)
-        return z.reshape(cam.height, cam.width).astype(np.float32)

@@ -58,6 +58,7 @@ class RunScene:
         self.mirror_handles: list[viser.CameraFrustumHandle] = []
         self.mirror_names: list[str] = []
         self.history: list[list[np.ndarray]] = []
+        self.shown_c2w: np.ndarray | None = None  # the mirrored poses last sent (M, 4, 4)
         self.scale = 0.3
         self.groups: dict[str, viser.FrameHandle] = {}
         self.frustums: list[viser.CameraFrustumHandle] = []  # every camera of the run (position: its centre)
@@ -111,7 +112,7 @@ class RunScene:
         if self.setup is not None:
             self.server.scene.remove_by_name("/run")
         self.groups = {}
-        self.mirror_handles, self.mirror_names, self.history = [], [], []
+        self.mirror_handles, self.mirror_names, self.history, self.shown_c2w = [], [], [], None
         self.frustums, self.hidden = [], []
         self.setup = None
 
@@ -149,19 +150,25 @@ class RunScene:
             self.groups["trajectories"].visible = self.visible["trajectories"]
 
     def update_mirrors(self, c2w: np.ndarray) -> None:
-        """Move the mirrored frustums to the refined poses (M, 4, 4) and extend their trajectories."""
+        """Move the mirrored frustums to the refined poses (M, 4, 4) and extend their trajectories. Only
+        what moved is sent: a paused or finished run sends nothing."""
         with self._lock:
-            if len(c2w) != len(self.mirror_handles):
+            if len(c2w) != len(self.mirror_handles) or (self.shown_c2w is not None and np.array_equal(c2w, self.shown_c2w)):
                 return
+            moved = np.ones(len(c2w), bool) if self.shown_c2w is None else np.any(c2w != self.shown_c2w, axis=(1, 2))
+            self.shown_c2w = np.array(c2w)
+            grew = False
             with self.server.atomic():
-                for h, T, hist in zip(self.mirror_handles, c2w, self.history):
-                    wxyz, pos = to_viser_pose(T)
-                    h.wxyz, h.position = wxyz, pos
+                for i in np.flatnonzero(moved):
+                    T, hist = c2w[i], self.history[i]
+                    self.mirror_handles[i].wxyz, self.mirror_handles[i].position = to_viser_pose(T)
                     if np.linalg.norm(T[:3, 3] - hist[-1]) > 1e-6:
                         hist.append(T[:3, 3].copy())
+                        grew = True
                         if len(hist) > MAX_TRAJ_POINTS:
                             del hist[1:-1:2]  # keep the start and the end, thin out the middle
-            self._draw_trajectories()
+            if grew:
+                self._draw_trajectories()
 
     def _draw_trajectories(self) -> None:
         segs = [np.stack([a, b]) for hist in self.history for a, b in zip(hist[:-1], hist[1:])]

@@ -46,8 +46,9 @@ class TrainPanel:
         self.plot = gui.add_uplot(
             (np.array([0.0, 1.0]), np.array([0.0, 0.0])),
             ({"label": "step"}, {"label": "PSNR (train batch, dB)", "stroke": "#f07814", "width": 2}),
-            title="PSNR", scales={"x": {"time": False}}, aspect=1.6,
+            title="PSNR", scales={"x": {"time": False}}, aspect=1.6, visible=False,
         )  # fmt: skip
+        self._plotted: tuple[int, float, float] | None = None  # (points, first and last step) of the curve shown
         self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
         self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
         with gui.add_folder("Restart", expand_by_default=True):
@@ -91,9 +92,13 @@ class TrainPanel:
         self.resume_btn.disabled = status != "paused"
 
     def set_plot(self, steps: list[float], psnr: list[float]) -> None:
-        x, y = np.array(steps), np.array(psnr)
-        if len(x) < 2:
+        """The run's PSNR curve; hidden until it has two points (a new run's plot starts empty, never the
+        last run's or a degenerate one); sent only when it changed."""
+        self.plot.visible = len(steps) >= 2
+        if len(steps) < 2 or (len(steps), steps[0], steps[-1]) == self._plotted:
             return
+        self._plotted = (len(steps), steps[0], steps[-1])
+        x, y = np.array(steps), np.array(psnr)
         if len(x) > 400:
             idx = np.linspace(0, len(x) - 1, 400).astype(int)
             x, y = x[idx], y[idx]
@@ -122,7 +127,7 @@ class TrainPanel:
                 parts.append(f"test PSNR **{test_psnr:.2f} dB**")
         elif status in ("restarting", "starting"):
             self.progress_bar.value = 0.0
-        parts.append(f"browser renders {100 * render_share:.0f}% of the time")
+        parts.append(f"browser renders {100 * render_share:.0f}% of the last 10 s")
         text = head + "\n\n" + " | ".join(parts)
         if message:
             text += f"\n\n_{message}_"
