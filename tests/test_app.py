@@ -491,6 +491,8 @@ def test_train_b_next_to_the_running_a(app):
 def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_path):
     """The default gate: the chair's estimate from 24-px inputs is doubted (confidence below 0.25),
     so the Flip+U run trains on no mirrored view, and the Mirror tab says so and why."""
+    from flipviz.viz import palette
+
     cfg = AppConfig(scene="chair", res=24, steps=100_000, batch_rays=256, no_rrd=True, port=0, images_every=0,
                     checkpoint_every=0, eval_on_stop=False, out=tmp_path / "run", view_width=64)  # fmt: skip
     a = App(cfg).start()
@@ -504,6 +506,25 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
         assert not a.trainer.spec.mirrors and not a.trainer.training.mirror_ids  # it trains B/L's views
         text = a.mirror.plane_text.content
         assert "**not confident**" in text and "trains on **no** mirrored view" in text, text
+        # the lesson of a doubted plane in one click (issue 26): the dropped mirrors drawn, scored, disagreeing
+
+        async def go():
+            async with ViserTestClient(url(a)) as c:
+                await c.send_camera((4.0, -4.0, 3.0))
+                await c.wait_gui("Show the mirrors anyway (not trained on)")
+                assert a.mirror.anyway_btn.visible and not a.mirror.preview_frame.visible
+                await c.click("Show the mirrors anyway (not trained on)")
+                t = time.monotonic()
+                while not any("not trained on" in k for k in a.mirror.scores):
+                    assert time.monotonic() - t < 40, a.mirror.table.content
+                    await asyncio.sleep(0.2)
+
+        run(go())
+        scores = next(v for k, v in a.mirror.scores.items() if "not trained on" in k)
+        assert a.mirror.preview_frame.visible and len(scores) == len(a.mirror.inputs) == len(a.mirror.preview)
+        assert [tuple(h.color) for h in a.mirror.preview] == [palette.score_color(x) for x in scores]
+        assert a.mirror.frustum_shows.value == "disagreement" and "not trained on" in a.mirror.table.content
+        assert not a.trainer.training.mirror_ids  # still not trained on
     finally:
         a.stop()
 
@@ -545,13 +566,37 @@ def test_restart_with_another_method(app):
             while not (app.setup is not None and app.setup.method == "bl" and app.step > 0):
                 assert time.monotonic() - t < 40, f"no restart: {app.status} {app.message}"
                 await asyncio.sleep(0.2)
+            # the replaced run's checkpoint is kept (within the budget): one click compares with it
+            await c.click("Compare with the previous run")
+            while app.compare.b is None:
+                assert time.monotonic() - t < 60, app.compare.status_md.content
+                await asyncio.sleep(0.2)
 
     old = app.setup
-    run(go())
+    try:
+        run(go())
+    finally:
+        b = app.compare.b
+        app.compare.stop()
     assert app.setup is not old and app.cfg.method == "bl" and app.restarts == 1
     first, second = app.run_dirs[-2], app.run_dirs[-1]  # beside each other, never nested
     assert second.parent == first.parent and second.name == f"{first.name}-restart1"
-    assert not (first / "checkpoint.pt").exists()  # the replaced run's checkpoint is not kept by default
+    assert (first / "checkpoint.pt").is_file() and b.trainer.run_dir == first and b.trainer.cfg.method == "flip+u"
+
+
+def test_replaced_runs_keep_their_newest_checkpoints_within_the_budget(tmp_path):
+    from flipviz.training.artifacts import prune_checkpoints
+
+    runs = [tmp_path / f"run{i}" for i in range(4)]  # oldest first
+    for i, d in enumerate(runs):
+        d.mkdir()
+        (d / "checkpoint.pt").write_bytes(b"x" * 100)
+        (d / "metrics.json").write_text("{}")
+    (runs[2] / "checkpoint.pt").unlink()  # a run that never wrote one
+    deleted = prune_checkpoints(runs, 250)
+    assert deleted == [runs[0] / "checkpoint.pt"]  # the newest two fit 250 bytes; the oldest goes
+    assert all((d / "metrics.json").is_file() for d in runs)
+    assert prune_checkpoints(runs, 0) == [runs[3] / "checkpoint.pt", runs[1] / "checkpoint.pt"]
 
 
 def test_degenerate_client_cameras_are_survived(app, capfd):
@@ -676,3 +721,54 @@ def test_the_render_share_is_a_fraction_of_the_time():
         assert w.share(window_s=60.0) == pytest.approx(0.6 / 60.0, rel=0.2)
     finally:
         w.stop()
+
+
+def test_the_plane_chart_draws_a_peak_at_0_or_180_whole_in_the_middle():
+    """Issue 26: the chair's chart peaked at the 0 / 180 edge, split in two. Azimuth is circular (period
+    180): the chart runs 90 degrees either side of the estimate."""
+    from flipviz.geometry.symmetry import PlaneEstimate
+    from flipviz.viz import palette
+    from flipviz.viz.viser_mirror import score_chart
+
+    az = np.arange(0.0, 180.0, 2.0)
+    d = (az - 179.0 + 90.0) % 180.0 - 90.0  # circular distance to 179 degrees
+    est = PlaneEstimate(Plane(np.zeros(3), np.array([np.cos(np.radians(179.0)), np.sin(np.radians(179.0)), 0.0])),
+                        0.6, 0.9, 0.5, list(az), list(np.exp(-(d / 8.0) ** 2)))  # fmt: skip
+    img = score_chart(est, np.array([0.0, 0.0, 1.0])).astype(int)
+    curve = np.abs(img - np.array(palette.MIRROR_PLANE)).sum(-1) < 60
+    rows, cols = np.nonzero(curve)
+    peak_col = cols[rows == rows.min()].mean()
+    assert abs(peak_col / img.shape[1] - 0.55) < 0.12, peak_col / img.shape[1]  # the middle of the axes
+    assert curve[:, : img.shape[1] // 4].any() and curve[:, -img.shape[1] // 4 :].any()  # both flanks drawn
+
+
+def test_bulk_gui_updates_run_on_viser_s_loop_thread():
+    """Issue 26: "UI update failed ... deque mutated during iteration": viser's message buffer calls
+    asyncio.Event.set() from the calling thread. The app's UI tick runs on the loop thread instead."""
+    import threading
+
+    import viser
+
+    from flipviz.viz.gui_thread import on_gui_thread
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+
+        async def ident() -> int:
+            return threading.get_ident()
+
+        loop_thread = asyncio.run_coroutine_threadsafe(ident(), server.get_event_loop()).result(10)
+        seen: list[int] = []
+        threads = [threading.Thread(target=lambda: seen.append(on_gui_thread(server, threading.get_ident, 10))) for _ in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert seen == [loop_thread] * 4 and loop_thread != threading.get_ident()
+        with pytest.raises(ZeroDivisionError):  # an error comes back to the caller's thread
+            on_gui_thread(server, lambda: 1 / 0, 10)
+        handle = server.gui.add_markdown("x")
+        on_gui_thread(server, lambda: setattr(handle, "content", "y"), 10)
+        assert handle.content == "y"
+    finally:
+        server.stop()

@@ -51,6 +51,23 @@ def remove_run(run_dir: Path) -> None:
             shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink(missing_ok=True)
 
 
+def prune_checkpoints(run_dirs: list[Path], budget_bytes: float) -> list[Path]:
+    """Keep the checkpoints of the newest run folders (`run_dirs` oldest first) within `budget_bytes`
+    in all and delete the older ones (metrics, renders and recordings stay). Returns those deleted."""
+    kept, deleted = 0, []
+    for run_dir in reversed(run_dirs):
+        ckpt = run_dir / CHECKPOINT_NAME
+        if not ckpt.is_file():
+            continue
+        size = ckpt.stat().st_size
+        if kept + size <= budget_bytes:
+            kept += size
+        else:
+            ckpt.unlink(missing_ok=True)
+            deleted.append(ckpt)
+    return deleted
+
+
 def write_test_renders(run_dir: Path, names: list[str], preds: list[np.ndarray], gts: list[np.ndarray]) -> None:
     for name, pred, gt in zip(names, preds, gts, strict=True):
         save_png(run_dir / "test_renders" / f"{name}.png", pred)

@@ -35,11 +35,13 @@ from flipviz.errors import UserError
 from flipviz.files import inside_roots, next_free, signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
+from flipviz.training.artifacts import prune_checkpoints
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
+from flipviz.viz.gui_thread import on_gui_thread
 from flipviz.viz.viser_common import plane_to_arg
 from flipviz.viz.viser_compare import ComparePanel, finished_runs
 from flipviz.viz.viser_mirror import MirrorLesson
@@ -89,8 +91,10 @@ class AppConfig(TrainConfig):
     """Default "max resolution" (pixels, width) of the render of your own still view (up to 1920 in the GUI)."""
     render_duty: float = 0.25
     """At most this fraction of wall time goes to browser renders (they share the trainer's lock)."""
-    keep_restart_checkpoints: bool = False
-    """Keep the checkpoint.pt of runs replaced by an in-app restart (each is tens of MB)."""
+    restart_checkpoints_mb: float = 500.0
+    """Disk budget for the checkpoints of runs an in-app restart replaced (tens of MB each): the newest
+    are kept, so Compare can load them as run B; older ones are deleted (their metrics, renders and
+    recordings stay). 0 deletes each when it is replaced."""
     browse_root: tuple[Path, ...] = ()
     """Folders a browser may open runs (Compare) and data (Restart) from, besides runs/, the folder
     beside this app's run folders and --data. Anything else typed in the browser is refused."""
@@ -210,6 +214,7 @@ class App(Observer):
             self.compare = ComparePanel(
                 self.server, self, lambda: train_config(self.cfg), self._run_dir, self._scene, self._run_folders,
                 self.browse_roots, on_change=lambda: self.views.request_all(), on_shown=self._compare_shown,
+                previous=self._previous_run,
             )  # fmt: skip
         with tabs.add_tab("Show", viser.Icon.EYE):
             gui.add_image(palette.legend_image(), label="Colours", format="png")
@@ -277,6 +282,11 @@ class App(Observer):
     def _run_dir(self) -> Path | None:
         trainer = self.trainer
         return trainer.run_dir if trainer is not None else None
+
+    def _previous_run(self) -> Path | None:
+        """The newest run folder this app trained before the current one that still holds its checkpoint."""
+        current = self._run_dir()
+        return next((d for d in reversed(self.run_dirs) if d != current and (d / CHECKPOINT_NAME).is_file()), None)
 
     def _scene(self) -> SceneData | None:
         trainer = self.trainer
@@ -388,8 +398,8 @@ class App(Observer):
     def restart(self, cfg: AppConfig) -> None:
         """Stop the current run and train `cfg` from scratch in a new run folder; resets the scene.
 
-        The replaced run keeps its metrics, renders and recording; its checkpoint is deleted unless
-        --keep-restart-checkpoints.
+        The replaced run keeps its metrics, renders and recording, and its checkpoint while the
+        replaced runs' checkpoints fit --restart-checkpoints-mb (the oldest go first).
         """
         with self._run_lock:
             if self._closing.is_set():
@@ -399,8 +409,8 @@ class App(Observer):
             self.train.set_controls(self.status)
             self._update_progress(None)
             self._stop_run()
-            if not self.cfg.keep_restart_checkpoints and self.run_dirs:
-                (self.run_dirs[-1] / CHECKPOINT_NAME).unlink(missing_ok=True)
+            for ckpt in prune_checkpoints(self.run_dirs, self.cfg.restart_checkpoints_mb * 1e6):
+                log.info("deleted %s (over --restart-checkpoints-mb)", ckpt)
             self.worker.cancel(lambda k: True)
             self.scene.clear()
             self.mirror.clear()
@@ -473,40 +483,44 @@ class App(Observer):
 
     # ---- UI thread --------------------------------------------------------------------------
     def _ui_loop(self, period: float = 0.25) -> None:
-        last_plot = last_mirrors = 0.0
+        """Four times a second, the browsers catch up with training: on viser's loop thread (gui_thread)."""
+        self._last_plot = self._last_mirrors = 0.0
         while not self._closing.wait(period):
             try:
-                with self._ev_lock:
-                    setup, self._pending_setup = self._pending_setup, None
-                    if setup is not None:
-                        self.setup, self.mirror_c2w, self._last_step, self._test_psnr = setup, None, None, None
-                        self._hist_step, self._hist_psnr = [], []
-                    images, self._last_images = self._last_images, None
-                    step_ev = self._last_step
-                    plane, self._plane = self._plane, None
-                if setup is not None:
-                    self._new_run(setup)
-                now = time.monotonic()
-                if step_ev is not None and now - last_mirrors > 0.5 and step_ev.mirror_c2w is not None:
-                    self.scene.update_mirrors(step_ev.mirror_c2w)
-                    last_mirrors = now
-                if now - last_plot > 1.0:
-                    with self._ev_lock:
-                        hist = (list(self._hist_step), list(self._hist_psnr))
-                    self.train.set_plot(*hist)
-                    self.compare.show_status()
-                    last_plot = now
-                if images is not None:
-                    self.mirror.on_images(images)
-                if plane is not None:
-                    self.mirror.follow_training(plane)
-                self.train.set_controls(self.status)
-                self._update_progress(step_ev)
-                if self.compare.keyframes and self.setup is not None:
-                    cams = [c.camera.position for c in self.server.get_clients().values()]
-                    self.compare.hide_keyframes_at(cams, 0.05 * float(self.setup.sphere_radius))
+                on_gui_thread(self.server, self._ui_tick, timeout=60.0)
             except Exception:
                 log.exception("UI update failed")
+
+    def _ui_tick(self) -> None:
+        with self._ev_lock:
+            setup, self._pending_setup = self._pending_setup, None
+            if setup is not None:
+                self.setup, self.mirror_c2w, self._last_step, self._test_psnr = setup, None, None, None
+                self._hist_step, self._hist_psnr = [], []
+            images, self._last_images = self._last_images, None
+            step_ev = self._last_step
+            plane, self._plane = self._plane, None
+        if setup is not None:
+            self._new_run(setup)
+        now = time.monotonic()
+        if step_ev is not None and now - self._last_mirrors > 0.5 and step_ev.mirror_c2w is not None:
+            self.scene.update_mirrors(step_ev.mirror_c2w)
+            self._last_mirrors = now
+        if now - self._last_plot > 1.0:
+            with self._ev_lock:
+                hist = (list(self._hist_step), list(self._hist_psnr))
+            self.train.set_plot(*hist)
+            self.compare.show_status()
+            self._last_plot = now
+        if images is not None:
+            self.mirror.on_images(images)
+        if plane is not None:
+            self.mirror.follow_training(plane)
+        self.train.set_controls(self.status)
+        self._update_progress(step_ev)
+        if self.compare.keyframes and self.setup is not None:
+            cams = [c.camera.position for c in self.server.get_clients().values()]
+            self.compare.hide_keyframes_at(cams, 0.05 * float(self.setup.sphere_radius))
 
     def _new_run(self, setup: SetupEvent) -> None:
         self._set_initial_camera(np.asarray(setup.sphere_center), float(setup.sphere_radius))

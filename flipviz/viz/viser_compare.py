@@ -111,10 +111,11 @@ class ComparePanel:
         self, server: viser.ViserServer, run: RunView, run_config: Callable[[], TrainConfig],
         run_dir: Callable[[], Path | None], scene: Callable[[], SceneData | None], search: Callable[[], list[Path]],
         roots: Callable[[], list[Path]], on_change: Callable[[], None], on_shown: Callable[[bool], None] = lambda on: None,
+        previous: Callable[[], Path | None] = lambda: None,
     ) -> None:  # fmt: skip
         gui = server.gui
         self.server, self.run, self.run_config, self.run_dir, self.scene = server, run, run_config, run_dir, scene
-        self.search, self.roots, self.on_change, self.on_shown = search, roots, on_change, on_shown
+        self.search, self.roots, self.on_change, self.on_shown, self.previous = search, roots, on_change, on_shown, previous
         self.shown = False  # whether the views show the comparison (a run B and a mode other than off)
         self.b: RunB | None = None
         self._note = NO_B  # what the tab says while there is no B (loading, or why it failed)
@@ -124,6 +125,8 @@ class ComparePanel:
         gui.add_markdown("Compare this run (**A**) with a second run (**B**) from your camera: split, side by side, "
                          "or their difference.")  # fmt: skip
         with gui.add_folder("Run B"):
+            self.previous_btn = gui.add_button("Compare with the previous run", icon=viser.Icon.HISTORY,
+                                               hint="The run this app trained before the current one (its checkpoint is kept)")  # fmt: skip
             self.runs_dd = gui.add_dropdown("Finished run", (NONE,), hint="Run folders with a checkpoint (runs/, this app's runs)")
             self.refresh_btn = gui.add_button("Find runs", icon=viser.Icon.REFRESH)
             self.path_txt = gui.add_text("Or a folder", "", hint="A run folder with checkpoint.pt, under the app's browse roots")
@@ -146,6 +149,7 @@ class ComparePanel:
         self.video_path: Path | None = None
         self.refresh_btn.on_click(lambda _: self.refresh())
         self.load_btn.on_click(lambda _: self._load_chosen())
+        self.previous_btn.on_click(lambda _: self._load_previous())
         self.train_btn.on_click(lambda _: self.train_b(self.method_dd.value))
         self.mode_dd.on_update(lambda _: self._changed())
         self.divider.on_update(lambda _: self.on_change())
@@ -166,6 +170,13 @@ class ComparePanel:
             self._say("_Choose a finished run or type a folder first._")
             return
         threading.Thread(target=self.load, args=(Path(chosen),), daemon=True).start()
+
+    def _load_previous(self) -> None:
+        folder = self.previous()
+        if folder is None:
+            self._say("_No previous run with a checkpoint: restart training once, then compare._")
+            return
+        threading.Thread(target=self.load, args=(folder,), daemon=True).start()
 
     def load(self, folder: Path) -> None:
         """Open a finished run as B (a few seconds: its scene and model are loaded). Only a folder under

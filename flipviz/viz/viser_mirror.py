@@ -63,16 +63,20 @@ ESTIMATE_HELP = (
 
 def score_chart(est: PlaneEstimate, up: np.ndarray, size: tuple[int, int] = (400, 240)) -> np.ndarray:
     """uint8 RGB chart: the best score of the vertical planes against their normal's azimuth, the
-    estimate's azimuth marked (matplotlib, drawn off-screen)."""
+    estimate's azimuth marked (matplotlib, drawn off-screen). Azimuth is circular with period 180 (a
+    normal and its negative are one plane), so the axis runs 90 degrees either side of the estimate:
+    a peak at 0 / 180 is drawn whole, in the middle, not split across the two edges."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    az = azimuth_deg(est.plane.normal, up) % 180.0
+    x = az + (np.asarray(est.azimuth_deg) - az + 90.0) % 180.0 - 90.0  # each azimuth within 90 deg of the estimate
+    order = np.argsort(x)
     fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
     ax = fig.add_subplot()
-    ax.plot(est.azimuth_deg, est.azimuth_score, color=palette.hex_color(palette.MIRROR_PLANE), lw=1.8)
-    az = azimuth_deg(est.plane.normal, up) % 180.0  # a normal and its negative are one plane
+    ax.plot(x[order], np.asarray(est.azimuth_score)[order], color=palette.hex_color(palette.MIRROR_PLANE), lw=1.8)
     ax.axvline(az, color="0.3", ls="--", lw=1)
-    ax.set(xlabel="normal azimuth about up (deg)", ylabel="score", xlim=(0, 180))
+    ax.set(xlabel="normal azimuth about up (deg, mod 180)", ylabel="score", xlim=(az - 90.0, az + 90.0))
     ax.set_title(f"estimate at {az:.1f} deg, confidence {est.confidence:.2f}", fontsize=9)
     ax.tick_params(labelsize=8)
     fig.tight_layout(pad=0.4)
@@ -106,6 +110,10 @@ class MirrorLesson:
             "Mirrored frustums show", FRUSTUM_IMAGES, initial_value=FRUSTUM_IMAGES[0],
             hint="disagreement: |flipped image - the model seen from the mirrored camera|",
         ), FRUSTUM_IMAGES)  # fmt: skip
+        self.anyway_btn = gui.add_button(
+            "Show the mirrors anyway (not trained on)", icon=viser.Icon.EYE, visible=False,
+            hint="The doubted plane's mirrored cameras, scored and showing where their flipped images disagree",
+        )  # fmt: skip (shown when an unconfident estimate dropped the mirrors)
         self.score_btn = gui.add_button("Score mirrors", icon=viser.Icon.RULER, hint="Render each mirrored view now")
         self.reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         self.restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
@@ -134,6 +142,7 @@ class MirrorLesson:
         self.scores: dict[str, list[float]] = {}
         self._lock = threading.Lock()
         self.score_btn.on_click(lambda _: self.worker.submit("mirror-score", self._score_now, priority=0))
+        self.anyway_btn.on_click(lambda _: self.show_anyway())
         self.reset_btn.on_click(lambda _: self.reset_plane())
         self.restart_btn.on_click(lambda _: self.restart())
         self.show_preview.on_update(lambda _: self._set_preview_visible())
@@ -149,6 +158,7 @@ class MirrorLesson:
         self.trail: list[np.ndarray] = []  # the tip of the refined plane's normal, step after step
         self.refining = False  # this run's training moves the plane
         self.trains_mirrors, self.dropped = True, False
+        self.anyway = False  # the dropped mirrors are drawn and scored, though training ignores them
         self.no_mirror_note = ""  # what the plane shown for a method without mirrors is
 
     # ---- per run ----------------------------------------------------------------------------
@@ -193,6 +203,8 @@ class MirrorLesson:
             self.preview, self.preview_frame = [], None
             self.trains_mirrors = setup.plane is not None
             self.dropped = setup.plane is None and setup.plane_estimate is not None  # a Flip run, plane not confident
+            self.anyway = False
+            self.anyway_btn.visible = self.dropped
             self.moved = False
             self.gizmo.on_update(self._on_gizmo)
             self._apply_plane(plane)
@@ -338,7 +350,7 @@ class MirrorLesson:
         if not self.trains_mirrors and self.dropped:
             self.plane_text.content = where + (
                 " - the estimate is **not confident**, so this run trains on **no** mirrored view "
-                "(`--unconfident-plane use` keeps them)."
+                "(`--unconfident-plane use` keeps them). *Show the mirrors anyway* draws and scores them."
             )
         elif not self.trains_mirrors:
             self.plane_text.content = where + (
@@ -349,7 +361,15 @@ class MirrorLesson:
             self.plane_text.content = where + (trained if same else " - **moved**: restart to train with it.")
 
     def _preview_wanted(self) -> bool:
-        return bool(self.show_preview.value and self.moved)
+        return bool(self.show_preview.value and (self.moved or self.anyway))
+
+    def show_anyway(self) -> None:
+        """The lesson of an asymmetric object in one click: the mirrors an unconfident estimate dropped,
+        drawn at the estimated plane's poses, coloured by their scores, showing their disagreement maps."""
+        self.anyway = True
+        self.frustum_shows.value = "disagreement"
+        self._set_preview_visible()
+        self.worker.submit("mirror-score", self._score_now, priority=0)
 
     def _set_preview_visible(self) -> None:
         if self.preview_frame is not None:
@@ -450,8 +470,10 @@ class MirrorLesson:
 
     def _score_now(self) -> None:
         """Render from the preview poses (plane moved) or the current BA poses, and score them."""
-        if self.moved and self.preview_cams:
-            cams, label = self.preview_cams, f"plane preview, step {self.run.step}"
+        preview = (self.moved or self.anyway) and bool(self.preview_cams)
+        if preview:
+            what = "plane preview" if self.moved else "doubted plane, not trained on"
+            cams, label = self.preview_cams, f"{what}, step {self.run.step}"
         else:
             c2w = self.run.mirror_c2w
             if c2w is None or len(c2w) != len(self.inputs):
@@ -459,20 +481,25 @@ class MirrorLesson:
             else:
                 cams = [c.with_pose(T) for c, T in zip(self.inputs, c2w)]
             label = f"BA poses (now), step {self.run.step}"
-        scores = []
+        scores, disagreement = [], []
         for cam, gt in zip(cams, self.flipped):
             out = self.run.render(cam, outputs=("rgb",))
             if out is None or gt is None:
                 scores.append(float("nan"))
+                disagreement.append(None)
                 continue
-            rgb = out["rgb"]
-            scores.append(image_psnr(rgb, resize_nearest(gt, rgb.shape[1], rgb.shape[0])))
+            rgb, gt = out["rgb"], resize_nearest(gt, out["rgb"].shape[1], out["rgb"].shape[0])
+            scores.append(image_psnr(rgb, gt))
+            disagreement.append(error_map(rgb, gt))
         self.scores[label] = scores
-        if not self.moved:
+        if not preview:
             self.scene.set_mirror_colors(scores)
-        else:  # the preview frustums take the colours of their scores
-            for h, sc in zip(self.preview, scores):
+        else:  # the preview frustums take the colours of their scores (and, asked for, the disagreement maps)
+            show_maps = self.frustum_shows.value == "disagreement"
+            for h, sc, img, flipped in zip(self.preview, scores, disagreement, self.flipped):
                 h.color = palette.score_color(sc)
+                if flipped is not None:
+                    h.image = thumbnail(img if show_maps and img is not None else flipped)
         self._show_table([f"{c.name}_flip" for c in self.inputs])
 
     def _show_table(self, names: list[str]) -> None:
