@@ -85,6 +85,11 @@ def score_chart(est: PlaneEstimate, up: np.ndarray, size: tuple[int, int] = (400
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
+def plane_line(plane: Plane) -> str:
+    p, n = np.round(plane.point, 2) + 0.0, np.round(plane.normal, 2) + 0.0  # + 0.0: no "-0.00"
+    return f"Plane: point ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f})"
+
+
 class MirrorLesson:
     """The Mirror tab: a plane gizmo, live preview frustums, consistency scores, restart with a plane."""
 
@@ -284,6 +289,7 @@ class MirrorLesson:
                 self.plane = plane
                 self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane), plane.point
                 self._show_typed(plane)
+                self.plane_text.content = plane_line(plane) + " - the plane training uses now."
             if len(self.trail) > 1:
                 segs = np.stack([np.stack(self.trail[:-1]), np.stack(self.trail[1:])], axis=1)
                 self.server.scene.add_line_segments("/plane_trail", segs, palette.MIRROR_PLANE, thickness=3.0,
@@ -342,11 +348,10 @@ class MirrorLesson:
                     h.color = palette.CAMERA["mirror_init"]  # not scored for this plane yet
         self._set_preview_visible()
         self._show_typed(plane)
-        p, n = np.round(plane.point, 2) + 0.0, np.round(plane.normal, 2) + 0.0  # + 0.0: no "-0.00"
         same = self.train_plane is not None and np.allclose(plane.point, self.train_plane.point) and np.allclose(
             plane.normal, self.train_plane.normal
         )
-        where = f"Plane: point ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f})"
+        where = plane_line(plane)
         if not self.trains_mirrors and self.dropped:
             self.plane_text.content = where + (
                 " - the estimate is **not confident**, so this run trains on **no** mirrored view "
