@@ -118,6 +118,12 @@ def test_scene_and_own_view(app):
             img = jpeg(bg["rgb_data"])
             # the render of our own camera: at the canvas's aspect (640 x 480), up to the max resolution
             assert img.shape[:2] == (96, 128)
+            await c.wait_for(lambda m: "Your view: full resolution, 128 px wide" in str(m))  # which pass it is
+            n = len(c.messages)
+            await c.set_value("Max resolution", 256)  # two passes: a quarter, then the full one, each named
+            await c.wait_for(lambda m: "coarse pass 1 of 2, 64 px wide" in str(m), start=n, timeout=30)
+            await c.wait_for(lambda m: "Your view: full resolution, 256 px wide" in str(m), start=n, timeout=30)
+            await c.set_value("Max resolution", 128)
 
     run(go())
 

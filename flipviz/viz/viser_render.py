@@ -188,6 +188,13 @@ class ClientView:
 SNAP_LAYERS = ("blend", "|error|", "beta^2")
 
 
+def pass_line(width: int, pass_idx: int, n_passes: int) -> str:
+    """What the background of a view is: a coarse pass (the finer one is on its way) or the finest."""
+    if pass_idx + 1 < n_passes:
+        return f"_Your view: coarse pass {pass_idx + 1} of {n_passes}, {width} px wide; the full resolution follows._"
+    return f"_Your view: full resolution, {width} px wide._"
+
+
 class ViewportRenderer:
     """Renders each client's browser camera as its background image (progressive, canvas-sized)."""
 
@@ -226,6 +233,7 @@ class ViewportRenderer:
             g = client.gui
             view.gui = {
                 "enabled": g.add_checkbox("Render my view", True, hint="Background: the model seen from your camera"),
+                "pass": g.add_markdown("_Your view: not rendered yet._"),  # which pass the background is
                 "output": guard_choice(g.add_dropdown("My view shows", OUTPUTS, initial_value="RGB"), OUTPUTS),
                 "max_width": guard_number(g.add_slider("Max resolution", MIN_WIDTH, MAX_WIDTH, 64, view.max_width,
                                           hint="Width in pixels of the finest pass of your view"), MIN_WIDTH, MAX_WIDTH),
@@ -360,6 +368,9 @@ class ViewportRenderer:
         image, bar, depth = composed if composed is not None else (*self._compose(view, cam, out), view_depth(cam, out))
         try:
             view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=depth)
+            line = pass_line(cam.width, 0 if moving else pass_idx, n_passes)
+            if view.gui["pass"].content != line:
+                view.gui["pass"].content = line
             view.gui["colorbar"].visible = bar is not None
             if bar is not None:
                 view.gui["colorbar"].image = palette.colorbar(*bar)

@@ -127,7 +127,8 @@ class TrainPanel:
                 parts.append(f"test PSNR **{test_psnr:.2f} dB**")
         elif status in ("restarting", "starting"):
             self.progress_bar.value = 0.0
-        parts.append(f"browser renders {100 * render_share:.0f}% of the last 10 s")
+        if status == "running":  # the share of the machine renders take from training (nothing to share otherwise)
+            parts.append(f"browser renders {100 * render_share:.0f}% of the last 10 s")
         text = head + "\n\n" + " | ".join(parts)
         if message:
             text += f"\n\n_{message}_"
