@@ -12,7 +12,6 @@ plane_demo.json (the plane's error at every logged step). The same run, live, in
 
 from __future__ import annotations
 
-import json
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path

@@ -471,13 +471,15 @@ def test_a_paused_app_goes_quiet(app):
 
 
 def test_train_b_next_to_the_running_a(app):
-    """Compare's "Train B next to this run": B/L trains on A's scene and views in its own folder beside A's."""
+    """Compare's "Train B next to this run": B/L trains on A's scene and views in its own folder beside A's,
+    here in the authors' setting beside A's flipviz setting (issue 22's fog demo)."""
 
     async def go():
         async with ViserTestClient(url(app)) as c:
             await c.send_camera((4.0, -4.0, 3.0))  # (viser resolves a client once its camera has arrived)
             await c.wait_gui("Train B next to this run")
             await c.set_value("B method", "bl")
+            await c.set_value("B setting", "authors")  # the official code's B/L: fog where no input looked
             await asyncio.sleep(0.2)
             await c.click("Train B next to this run")
             t = time.monotonic()
@@ -490,6 +492,8 @@ def test_train_b_next_to_the_running_a(app):
         b = app.compare.b
         assert b.training and b.trainer.cfg.method == "bl" and b.trainer.run_dir.name == f"{app._run_dir().name}-B-bl"
         assert b.trainer.scene.name == app.setup.scene and b.trainer.run_dir.parent == app._run_dir().parent
+        assert b.trainer.cfg.preset == "authors" and b.trainer.cfg.background == "last"  # B in the authors' setting
+        assert app.cfg.preset == "fast" and "B/L (authors)" in b.name  # A stays in flipviz's
     finally:
         app.compare.stop()
 
@@ -566,6 +570,7 @@ def test_restart_with_another_method(app):
             await c.send_camera((4.0, -4.0, 3.0))
             await c.wait_gui("Restart training")
             await c.set_value("Method", "bl")
+            await c.set_value("Setting", "authors")
             await asyncio.sleep(0.3)
             await c.click("Restart training")
             t = time.monotonic()
@@ -585,6 +590,7 @@ def test_restart_with_another_method(app):
         b = app.compare.b
         app.compare.stop()
     assert app.setup is not old and app.cfg.method == "bl" and app.restarts == 1
+    assert app.cfg.preset == "authors" and app.trainer.cfg.background == "last" and app.trainer.cfg.density_on == "all"
     first, second = app.run_dirs[-2], app.run_dirs[-1]  # beside each other, never nested
     assert second.parent == first.parent and second.name == f"{first.name}-restart1"
     assert (first / "checkpoint.pt").is_file() and b.trainer.run_dir == first and b.trainer.cfg.method == "flip+u"

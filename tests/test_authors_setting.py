@@ -136,3 +136,15 @@ def test_a_run_in_the_authors_setting_trains_saves_and_resumes(tmp_path, backgro
     assert load_checkpoint(tmp_path / "run")["config"]["background"] == background
     again = Trainer(TrainConfig(**dict(kw, steps=30), resume=tmp_path / "run")).run()
     assert again["status"] == "finished" and again["steps"] == 30
+
+
+def test_switching_presets_resets_what_the_old_one_chose_and_keeps_your_own_settings():
+    """with_preset (the app's Restart / Compare "Setting"): authors -> fast gives flipviz's defaults back."""
+    from flipviz.training.config import AUTHORS_PRESET, TrainConfig, with_preset
+
+    mine = TrainConfig(preset="authors", n_samples=32, background="learned")  # two settings of my own
+    assert mine.density_on == "all" and mine.background == "learned"
+    fast = with_preset(mine, "fast")
+    assert fast.preset == "fast" and fast.n_samples == 32 and fast.background == "learned"
+    assert all(getattr(fast, k) == getattr(TrainConfig(), k) for k in AUTHORS_PRESET if k != "background")
+    assert with_preset(fast, "authors") == mine  # the round trip is the config it started from

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import types
 import typing
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 from flipviz.errors import UserError
 
@@ -242,3 +242,14 @@ class TrainConfig:
 
 
 _FAST_DEFAULTS = {f.name: f.default for f in fields(TrainConfig) if f.name in PAPER_PRESET}  # AUTHORS_PRESET's too
+PRESETS: dict[str, dict[str, object]] = {"fast": _FAST_DEFAULTS, "authors": AUTHORS_PRESET, "paper": PAPER_PRESET}
+
+C = TypeVar("C", bound=TrainConfig)
+
+
+def with_preset(cfg: C, preset: str) -> C:
+    """`cfg` in another preset: the settings its preset chose go back to the fast defaults, then the new
+    preset applies; a setting given apart from the preset stays (as on the command line)."""
+    old = PRESETS[cfg.preset]
+    back = {k: _FAST_DEFAULTS[k] for k in _FAST_DEFAULTS if getattr(cfg, k) == old.get(k, _FAST_DEFAULTS[k])}
+    return replace(cfg, **back, preset=preset)

@@ -37,7 +37,7 @@ from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.training.artifacts import prune_checkpoints
 from flipviz.training.checkpoint import CHECKPOINT_NAME
-from flipviz.training.config import TrainConfig
+from flipviz.training.config import TrainConfig, with_preset
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
@@ -388,7 +388,8 @@ class App(Observer):
             self.train.say(f"**Not restarted:** {e}")
             return
         scene = choice.scene if choice.scene is not None else self.cfg.scene
-        self.restart(replace(self.cfg, scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps))
+        cfg = with_preset(self.cfg, choice.preset) if choice.preset != self.cfg.preset else self.cfg
+        self.restart(replace(cfg, scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps))
 
     def restart_with_plane(self, plane: Plane) -> None:
         """Retrain with `plane` as the mirror plane (with Flip+U unless a Flip method is running)."""
@@ -531,7 +532,7 @@ class App(Observer):
         self.compare.refresh()
         self.views.unsnap_all()
         cfg = self.cfg
-        self.train.show_run(cfg.scene, str(cfg.data) if cfg.data else None, cfg.method, cfg.config, cfg.steps)
+        self.train.show_run(cfg.scene, str(cfg.data) if cfg.data else None, cfg.method, cfg.config, cfg.steps, cfg.preset)
         self.views.request_all()
         self.preview.request(delay=1.0)
 

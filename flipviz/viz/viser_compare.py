@@ -32,13 +32,14 @@ from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
 from flipviz.files import inside_roots, next_free
 from flipviz.training.checkpoint import CHECKPOINT_NAME
-from flipviz.training.config import METHOD_LABELS, METHODS, TrainConfig
+from flipviz.training.config import METHOD_LABELS, METHODS, TrainConfig, with_preset
 from flipviz.training.evaluate import image_psnr
 from flipviz.viz import palette
 from flipviz.viz.camera_path import KEYFRAMES_FILE, write_keyframes
 from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import camera_from_viser, error_map, to_viser_pose, view_depth
 from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
+from flipviz.viz.viser_train import SETTING_HINT, SETTINGS
 
 log = logging.getLogger("flipviz.app")
 
@@ -70,6 +71,11 @@ def label(img: np.ndarray, text: str, x: int = 4, align_right: bool = False) -> 
     return img
 
 
+def run_label(cfg: TrainConfig) -> str:
+    """A run's method, and its setting unless it is flipviz's own: "B/L", "B/L (authors)"."""
+    return METHOD_LABELS[cfg.method] + ("" if cfg.preset == "fast" else f" ({cfg.preset})")
+
+
 def finished_runs(folders: list[Path]) -> list[Path]:
     """Run folders holding a checkpoint under `folders` (one level deep, and bench's runs/<key>), newest first."""
     found: set[Path] = set()
@@ -93,7 +99,7 @@ class RunB:
 
     @property
     def name(self) -> str:
-        return f"{METHOD_LABELS[self.trainer.cfg.method]} ({self.trainer.run_dir.name})"
+        return f"{run_label(self.trainer.cfg)} ({self.trainer.run_dir.name})"
 
     def render(self, camera: Camera, outputs=("rgb", "depth", "opacity")) -> dict:
         return self.trainer.render(camera, outputs)
@@ -132,6 +138,7 @@ class ComparePanel:
             self.path_txt = gui.add_text("Or a folder", "", hint="A run folder with checkpoint.pt, under the app's browse roots")
             self.load_btn = gui.add_button("Load run B", icon=viser.Icon.FOLDER_OPEN)
             self.method_dd = guard_choice(gui.add_dropdown("B method", METHODS, initial_value="bl", hint="Train B with this method"), METHODS)
+            self.setting_dd = guard_choice(gui.add_dropdown("B setting", SETTINGS, hint=SETTING_HINT), SETTINGS)
             self.train_btn = gui.add_button("Train B next to this run", icon=viser.Icon.PLAYER_PLAY,
                                             hint="Same scene, views and steps; both share the CPU")  # fmt: skip
         self.mode_dd = guard_choice(gui.add_dropdown("Show", MODES, initial_value="off"), MODES)
@@ -150,7 +157,7 @@ class ComparePanel:
         self.refresh_btn.on_click(lambda _: self.refresh())
         self.load_btn.on_click(lambda _: self._load_chosen())
         self.previous_btn.on_click(lambda _: self._load_previous())
-        self.train_btn.on_click(lambda _: self.train_b(self.method_dd.value))
+        self.train_btn.on_click(lambda _: self.train_b(self.method_dd.value, self.setting_dd.value))
         self.mode_dd.on_update(lambda _: self._changed())
         self.divider.on_update(lambda _: self.on_change())
         self.add_key_btn.on_click(self._add_key)
@@ -196,14 +203,17 @@ class ComparePanel:
             return
         self._set_b(RunB(trainer, training=False))
 
-    def train_b(self, method: str) -> None:
-        """Train `method` as B on this run's scene and views, in A's folder's sibling `<A>-B-<method>`."""
+    def train_b(self, method: str, preset: str | None = None) -> None:
+        """Train `method` as B on this run's scene and views, in A's folder's sibling `<A>-B-<method>`, in
+        A's setting or `preset` (e.g. the authors' B/L beside flipviz's: the fog in unseen space)."""
         from flipviz.training.trainer import Trainer
 
         a_dir, cfg = self.run_dir(), self.run_config()
         if a_dir is None:
             self._say("_Run A has not started yet._")
             return
+        if preset is not None and preset != cfg.preset:
+            cfg = with_preset(cfg, preset)
         out = next_free(f"{a_dir}-B-{method.replace('+', 'u')}")  # beside an earlier run B, never over it
         self._say(f"_Building run B ({method})..._")
 
@@ -278,8 +288,7 @@ class ComparePanel:
         if b is None or self.mode_dd.value == "off":
             return None
         mode = self.mode_dd.value
-        a_name = f"A: {METHOD_LABELS.get(self.run.setup.method, '?')}" if self.run.setup else "A"
-        b_name = f"B: {METHOD_LABELS[b.trainer.cfg.method]}"
+        a_name, b_name = f"A: {run_label(self.run_config())}", f"B: {run_label(b.trainer.cfg)}"
         if snapped is not None and snapped.reference is not None:
             self._score(snapped, b)
         if mode == "side by side":
@@ -363,10 +372,10 @@ class ComparePanel:
         try:
             write_keyframes(folder / KEYFRAMES_FILE, keys)
             cams = [c.resized(res) for c in keyframe_path(setup, keys, int(bounded(self.frames_num.value, 2, MAX_FRAMES, 60)))]
-            renders = [(f"A: {METHOD_LABELS[setup.method]}", lambda c: self.run.render(c))]
+            renders = [(f"A: {run_label(self.run_config())}", lambda c: self.run.render(c))]
             if self.b is not None:
                 b = self.b
-                renders.append((f"B: {METHOD_LABELS[b.trainer.cfg.method]}", b.render))
+                renders.append((f"B: {run_label(b.trainer.cfg)}", b.render))
             done = [0]
 
             def counted(frames):

@@ -10,12 +10,15 @@ import numpy as np
 import viser
 
 from flipviz.data.scenes import SCENES
-from flipviz.training.config import METHODS
+from flipviz.training.config import METHODS, PRESETS
 from flipviz.training.events import SetupEvent, StepEvent, split_label
 from flipviz.viz.viser_guard import guard_choice, guard_number
 
 DATA_FOLDER = "(a data folder)"
 CONFIGS = tuple(str(i) for i in range(1, 9))
+SETTINGS = tuple(PRESETS)  # --preset: fast (flipviz's), authors (the official code's), paper (for a GPU)
+SETTING_HINT = ("fast: flipviz's grid, white background; authors: the official code's choices (the last sample is "
+                "the background: fog where no input looked); paper: those and the paper's NeRF, for a GPU")
 MAX_STEPS = 10_000_000  # TrainConfig.validate's bound
 
 
@@ -28,6 +31,7 @@ class RunChoice:
     method: str
     config: int
     steps: int
+    preset: str
 
 
 def fmt_time(s: float) -> str:
@@ -58,6 +62,7 @@ class TrainPanel:
             self.method_dd = guard_choice(gui.add_dropdown("Method", METHODS), METHODS)
             self.config_dd = guard_choice(gui.add_dropdown("Configuration", CONFIGS), CONFIGS)
             self.steps_num = guard_number(gui.add_number("Steps", 600, min=1, max=MAX_STEPS, step=1), 1, MAX_STEPS)
+            self.setting_dd = guard_choice(gui.add_dropdown("Setting", SETTINGS, hint=SETTING_HINT), SETTINGS)
             self.restart_btn = gui.add_button("Restart training", icon=viser.Icon.REFRESH)
             self.restart_md = gui.add_markdown("")
         self.pause_btn.on_click(lambda _: on_pause())
@@ -72,17 +77,19 @@ class TrainPanel:
     def choice(self) -> RunChoice:
         data = self.data_txt.value.strip() if self.scene_dd.value == DATA_FOLDER else None
         scene = None if data is not None else self.scene_dd.value
-        return RunChoice(scene, data, self.method_dd.value, int(self.config_dd.value), int(self.steps_num.value))
+        return RunChoice(scene, data, self.method_dd.value, int(self.config_dd.value), int(self.steps_num.value),
+                         self.setting_dd.value)  # fmt: skip
 
     def say(self, text: str) -> None:
         """One line under the Restart button (why a restart was refused); cleared by the next run."""
         self.restart_md.content = text
 
-    def show_run(self, scene: str, data: str | None, method: str, config: int, steps: int) -> None:
+    def show_run(self, scene: str, data: str | None, method: str, config: int, steps: int, preset: str) -> None:
         """Put the form on the run that trains now."""
         self.scene_dd.value = DATA_FOLDER if data else scene
         self.data_txt.value = data or ""
         self.method_dd.value, self.config_dd.value, self.steps_num.value = method, str(config), int(steps)
+        self.setting_dd.value = preset
         self.restart_md.content = ""
         self._show_data_field()
 
