@@ -13,7 +13,9 @@
    driveby`) trained with `--mirror-plane auto`: the Mirror tab's estimated plane, its confidence
    and the score-against-azimuth chart;
 6. app_plane.png: the chair trained from a mirror plane turned 10 degrees (the plane demo): the
-   Mirror tab while training pulls the plane back, its trail and its error.
+   Mirror tab while training pulls the plane back, its trail and its error;
+7. app_fog.png: the chair's B/L in flipviz's setting (A) side by side with B/L in the official code's
+   setting (B, trained from the Compare tab), at an unobserved view: the fog of issue 22.
 """
 
 from __future__ import annotations
@@ -39,9 +41,9 @@ class Args:
     out: Path = ROOT / "assets"
     steps_before: int = 700
     """Training steps before the first screenshot."""
-    shots: str = "orbit,capture,compare,plane"
+    shots: str = "orbit,capture,compare,plane,fog"
     """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png; compare: app_compare.png;
-    plane: app_plane.png."""
+    plane: app_plane.png; fog: app_fog.png."""
 
 
 def main(args: Args) -> None:
@@ -54,6 +56,8 @@ def main(args: Args) -> None:
         compare_shot(args)
     if "plane" in args.shots:
         plane_shot(args)
+    if "fog" in args.shots:
+        fog_shot(args)
     print(f"screenshots in {args.out}")
 
 
@@ -143,6 +147,30 @@ def plane_shot(args: Args) -> None:
             wait_until(lambda: "Refined plane" in app.mirror.refine_text.content, 60, what="the refined plane")
             time.sleep(4.0)
             (args.out / "app_plane.png").write_bytes(screenshot_png(d))
+    finally:
+        app.stop()
+
+
+def fog_shot(args: Args) -> None:
+    cfg = AppConfig(scene="chair", method="bl", mirror_plane="official", no_rrd=True, port=0, images_every=100,
+                    steps=600, out=Path(tempfile.mkdtemp()) / "run")  # fmt: skip
+    app = App(cfg).start()
+    try:
+        wait_until(lambda: app.status == "finished", 900, what="training A")
+        with chromium() as d:
+            open_page(d, app.port, settle_s=5.0)
+            snap_to(d, app, "test 3")
+            tab(d, "Compare")
+            choose(d, "B method", "bl")
+            choose(d, "B setting", "authors")
+            wait_until(lambda: app.compare.setting_dd.value == "authors", 30, what="the setting on the server")
+            button(d, "Train B next to this run")
+            wait_until(lambda: app.compare.b is not None and not app.compare.b.thread.is_alive(), 900, what="training B")
+            time.sleep(2.0)
+            choose(d, "Show", "side by side")
+            wait_until(lambda: app.compare.mode_dd.value == "side by side", 30, what="side by side on the server")
+            time.sleep(20.0)  # the finest pass renders A and B
+            (args.out / "app_fog.png").write_bytes(screenshot_png(d))
     finally:
         app.stop()
 
