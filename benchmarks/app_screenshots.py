@@ -78,6 +78,16 @@ def snap_to(d, app: App, prefix: str) -> None:
     time.sleep(1.0)
 
 
+def side_by_side_shot(d, app: App, path: Path) -> None:
+    """Compare's side by side, once the server has it (B just loaded set the mode itself), then a
+    screenshot after the finest pass of A and B."""
+    time.sleep(2.0)
+    choose(d, "Show", "side by side")
+    wait_until(lambda: app.compare.mode_dd.value == "side by side", 30, what="side by side on the server")
+    time.sleep(20.0)
+    path.write_bytes(screenshot_png(d))
+
+
 def capture_shot(args: Args) -> None:
     from flipviz.data.driveby import export_driveby
 
@@ -120,11 +130,7 @@ def compare_shot(args: Args) -> None:
             time.sleep(0.5)
             button(d, "Load run B")
             wait_until(lambda: app.compare.b is not None and app.compare.scores, 120, what="run B and its scores")
-            time.sleep(2.0)
-            choose(d, "Show", "side by side")
-            wait_until(lambda: app.compare.mode_dd.value == "side by side", 30, what="side by side on the server")
-            time.sleep(20.0)  # the finest pass renders A and B
-            (args.out / "app_compare.png").write_bytes(screenshot_png(d))
+            side_by_side_shot(d, app, args.out / "app_compare.png")
     finally:
         app.stop()
 
@@ -166,11 +172,7 @@ def fog_shot(args: Args) -> None:
             wait_until(lambda: app.compare.setting_dd.value == "authors", 30, what="the setting on the server")
             button(d, "Train B next to this run")
             wait_until(lambda: app.compare.b is not None and not app.compare.b.thread.is_alive(), 900, what="training B")
-            time.sleep(2.0)
-            choose(d, "Show", "side by side")
-            wait_until(lambda: app.compare.mode_dd.value == "side by side", 30, what="side by side on the server")
-            time.sleep(20.0)  # the finest pass renders A and B
-            (args.out / "app_fog.png").write_bytes(screenshot_png(d))
+            side_by_side_shot(d, app, args.out / "app_fog.png")
     finally:
         app.stop()
 
