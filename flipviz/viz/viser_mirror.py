@@ -496,7 +496,6 @@ class MirrorLesson:
             rgb, gt = out["rgb"], resize_nearest(gt, out["rgb"].shape[1], out["rgb"].shape[0])
             scores.append(image_psnr(rgb, gt))
             disagreement.append(error_map(rgb, gt))
-        self.scores[label] = scores
         if not preview:
             self.scene.set_mirror_colors(scores)
         else:  # the preview frustums take the colours of their scores (and, asked for, the disagreement maps)
@@ -505,6 +504,7 @@ class MirrorLesson:
                 h.color = palette.score_color(sc)
                 if flipped is not None:
                     h.image = thumbnail(img if show_maps and img is not None else flipped)
+        self.scores[label] = scores  # published once the frustums wear them
         self._show_table([f"{c.name}_flip" for c in self.inputs])
 
     def _show_table(self, names: list[str]) -> None:

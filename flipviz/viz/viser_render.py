@@ -217,7 +217,7 @@ class ViewportRenderer:
         self.worker = worker
         self.render = render  # (camera, outputs) -> dict or None when no model is ready
         self.is_training, self.preview_shown, self.depth_range = is_training, preview_shown, depth_range
-        self.max_width = int(max_width)
+        self.max_width = int(min(max(max_width, MIN_WIDTH), MAX_WIDTH))  # the slider's own range (--view-width 64 broke it)
         self.settle_s, self.refresh_s = float(settle_s), float(refresh_s)
         self.on_unsnap, self.show_preview = on_unsnap, show_preview
         self.compare = compare  # the Compare tab's view of A and B, when it is on (viser_compare.py)
