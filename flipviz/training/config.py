@@ -250,6 +250,8 @@ C = TypeVar("C", bound=TrainConfig)
 def with_preset(cfg: C, preset: str) -> C:
     """`cfg` in another preset: the settings its preset chose go back to the fast defaults, then the new
     preset applies; a setting given apart from the preset stays (as on the command line)."""
+    if preset == cfg.preset:
+        return cfg
     old = PRESETS[cfg.preset]
     back = {k: _FAST_DEFAULTS[k] for k in _FAST_DEFAULTS if getattr(cfg, k) == old.get(k, _FAST_DEFAULTS[k])}
     return replace(cfg, **back, preset=preset)

@@ -388,7 +388,7 @@ class App(Observer):
             self.train.say(f"**Not restarted:** {e}")
             return
         scene = choice.scene if choice.scene is not None else self.cfg.scene
-        cfg = with_preset(self.cfg, choice.preset) if choice.preset != self.cfg.preset else self.cfg
+        cfg = with_preset(self.cfg, choice.preset)
         self.restart(replace(cfg, scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps))
 
     def restart_with_plane(self, plane: Plane) -> None:

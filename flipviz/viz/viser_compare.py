@@ -212,7 +212,7 @@ class ComparePanel:
         if a_dir is None:
             self._say("_Run A has not started yet._")
             return
-        if preset is not None and preset != cfg.preset:
+        if preset is not None:
             cfg = with_preset(cfg, preset)
         out = next_free(f"{a_dir}-B-{method.replace('+', 'u')}")  # beside an earlier run B, never over it
         self._say(f"_Building run B ({method})..._")

@@ -153,9 +153,11 @@ class RunScene:
         """Move the mirrored frustums to the refined poses (M, 4, 4) and extend their trajectories. Only
         what moved is sent: a paused or finished run sends nothing."""
         with self._lock:
-            if len(c2w) != len(self.mirror_handles) or (self.shown_c2w is not None and np.array_equal(c2w, self.shown_c2w)):
+            if len(c2w) != len(self.mirror_handles):
                 return
             moved = np.ones(len(c2w), bool) if self.shown_c2w is None else np.any(c2w != self.shown_c2w, axis=(1, 2))
+            if not moved.any():
+                return
             self.shown_c2w = np.array(c2w)
             grew = False
             with self.server.atomic():
