@@ -470,6 +470,130 @@ def test_a_paused_app_goes_quiet(app):
     assert sent < 1000, f"{sent} bytes in 4 s while paused: {dict(kinds)}"
 
 
+def test_the_curves_plot_the_unobserved_views_the_mirrors_and_the_plane(app):
+    """Issue 26 item 8: the Train tab plots the unobserved views' PSNR beside the batch's, the Mirror tab each
+    mirrored camera's rotation error and the refined plane's error, over the steps."""
+
+    def plot(title: str):
+        return lambda m: m["type"] == "GuiUplotMessage" and (m["props"].get("title") or "").startswith(title)
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            psnr = await c.wait_for(plot("PSNR"), timeout=60)
+            poses = await c.wait_for(plot("Mirrored cameras"), timeout=60)
+            plane = await c.wait_for(plot("Mirror plane"), timeout=60)
+            return psnr, poses, plane
+
+    psnr, poses, plane = run(go())
+    n_mirrors = sum(ci.kind == "mirror_init" for ci in app.setup.cameras)
+    assert [s["label"] for s in psnr["props"]["series"]] == ["step", "train batch", "unobserved views"]
+    assert len(poses["props"]["series"]) == 1 + n_mirrors
+    assert [s["label"] for s in plane["props"]["series"]] == ["step", "angle (deg)", "offset (units)"]
+    deadline = time.monotonic() + 120
+    while not (np.isfinite(app.train.plot.data[2]).sum() >= 1 and app.mirror.plane_plot.visible):
+        assert time.monotonic() < deadline, "no test evaluation or plane curve was plotted"
+        time.sleep(0.2)
+    x, train, test = app.train.plot.data
+    with app._ev_lock:
+        evals = dict(app._curves.test)
+    assert len(x) >= 2 and np.all(np.diff(x) > 0) and np.isfinite(train).sum() >= 2
+    assert {float(s): float(p) for s, p in zip(x, test) if np.isfinite(p)} == pytest.approx(evals)
+    data = app.mirror.pose_plot.data  # the chair's true plane is known: the error against the exact reflections
+    assert app.mirror.pose_plot.title.startswith("Mirrored cameras: rotation error") and len(data) == 1 + n_mirrors
+    assert all(np.isfinite(d).all() and (d >= 0).all() for d in data[1:])
+    steps, deg, off = app.mirror.plane_plot.data
+    assert app.mirror.plane_plot.title == "Mirror plane: error vs the true plane"
+    assert (deg >= 0).all() and (off >= 0).all() and deg.max() < 45
+
+
+def test_the_pixel_probe_reads_a_clicked_pixel_of_the_snapped_view(app):
+    """Issue 26 item 8: snapped to a view, a click gives that pixel's ground truth, render, |error|, beta^2,
+    depth and opacity, and a marker where its ray meets the surface."""
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_gui("View")
+            await c.click_scene((4.0, -4.0, 3.0), (-0.6, 0.6, -0.45))
+            await c.wait_for(lambda m: "not at a view" in str(m), timeout=30)
+            await c.set_value("View", key)
+            await asyncio.sleep(0.2)
+            n = len(c.messages)
+            await c.click("Snap to view")
+            await c.wait_for(lambda m: m["type"] == "SetCameraPositionMessage" and not m.get("initial"), start=n)
+            _, dirs = cam.rays()
+            await c.click_scene(cam.center, cam.c2w[:3, 2])  # straight backwards: outside the image
+            await c.wait_for(lambda m: "outside" in str(m), timeout=30)
+            n = len(c.messages)
+            await c.click_scene(cam.center, dirs[row * cam.width + col])
+            await c.wait_for(lambda m: m["type"] == "IcosphereMessage" and m["name"] == "/probe", timeout=60, start=n)
+            return await c.wait_for(lambda m: m["type"] == "SetPositionMessage" and m["name"] == "/probe", start=n)
+
+    deadline = time.monotonic() + 60
+    while not any(k.startswith("test") for k in app.snap.views):  # the views are listed by the UI tick
+        assert time.monotonic() < deadline, "the run's views were never listed"
+        time.sleep(0.1)
+    app.pause()
+    try:
+        key = next(k for k in app.snap.views if k.startswith("test"))
+        cam = app.snap.views[key][2]
+        opacity = app.render(cam)["opacity"]
+        row, col = np.unravel_index(np.argmax(opacity), opacity.shape)  # a pixel on the object
+        marker = run(go())
+        out = app.render(cam)  # paused: the model the probe read
+    finally:
+        app.resume()
+    r = app.probe.reading
+    gt = app.snap.views[key][3][row, col]
+    assert (r.view, r.row, r.col) == (key, row, col)
+    assert np.allclose(r.rgb, out["rgb"][row, col], atol=1e-5) and np.allclose(r.gt, gt)
+    assert r.error == pytest.approx(float(np.abs(out["rgb"][row, col] - gt).mean()), abs=1e-5)
+    assert r.depth == pytest.approx(float(out["depth"][row, col]), abs=1e-4)
+    assert r.opacity == pytest.approx(float(out["opacity"][row, col]), abs=1e-5)
+    assert r.beta2 == pytest.approx(float(out["beta2"][row, col]), abs=1e-6)  # Flip+U renders beta^2
+    rows, cols, inside = cam.project(np.asarray(marker["position"])[None])
+    assert inside[0] and (rows[0], cols[0]) == (row, col)  # the marker lies on the clicked pixel's ray
+    text = app.probe.text.content
+    assert f"Pixel ({row}, {col})" in text and "beta^2" in text and "opacity" in text
+
+
+def test_a_click_ray_lands_on_its_own_pixel():
+    from flipviz.viz.viser_probe import pixel_of_ray
+
+    cam = Camera(np.eye(4), 12, 8, 9.0).with_pose(c2w_from_viser(*to_viser_pose(np.eye(4))))
+    _, dirs = cam.rays()
+    got = [pixel_of_ray(cam, d) for d in dirs]
+    assert got == [(r, c) for r in range(8) for c in range(12)]
+    assert pixel_of_ray(cam, -dirs[0]) is None
+
+
+def test_a_test_camera_where_a_mirror_lands_is_drawn_around_it_not_on_it(app):
+    """Issue 26 item 5: a test frustum and a mirrored frustum at one pose were drawn line on line. The
+    test frustum there is now larger, so the two nest (the chair's mirrors land near its test views)."""
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_for(lambda m: m["type"] == "CameraFrustumMessage" and m["name"].startswith("/run/mirrors/"))
+            await asyncio.sleep(0.5)  # the rest of the scene's frame
+            return {m["name"]: m["props"]["scale"] for m in c.messages if m["type"] == "CameraFrustumMessage"}
+
+    drawn = run(go())
+    cams = {}
+    for group, kind in (("tests", "test"), ("mirrors", "mirror_init")):
+        of_kind = [ci.camera for ci in app.setup.cameras if ci.kind == kind]
+        cams.update({f"/run/{group}/{k}": cam for k, cam in enumerate(of_kind)})
+    base = app.scene.scale
+    tests, mirrors = ([n for n in drawn if n.startswith(f"/run/{g}/")] for g in ("tests", "mirrors"))
+    pairs = [(t, m) for t in tests for m in mirrors if np.linalg.norm(cams[t].center - cams[m].center) < base]
+    assert pairs, "no mirrored camera landed on a test view (chair, configuration 1)"
+    for t, m in pairs:
+        assert drawn[t] >= 1.3 * drawn[m], (t, m, drawn[t], drawn[m])
+    far = [t for t in tests if all(np.linalg.norm(cams[t].center - cams[m].center) > 2 * base for m in mirrors)]
+    assert far and all(drawn[t] == pytest.approx(base) for t in far)  # the others keep their size
+
+
 def test_train_b_next_to_the_running_a(app):
     """Compare's "Train B next to this run": B/L trains on A's scene and views in its own folder beside A's,
     here in the authors' setting beside A's flipviz setting (issue 22's fog demo)."""
@@ -710,7 +834,7 @@ def test_every_colour_the_3d_view_draws_is_in_the_legend():
     """Issue 26: magenta (novel cameras, keyframes) and others were drawn but not in the legend."""
     from flipviz.viz import palette
 
-    drawn = {*palette.CAMERA.values(), palette.SPHERE, palette.MIRROR_PLANE, palette.TRUE_PLANE, palette.TRAJECTORY}
+    drawn = {*palette.CAMERA.values(), palette.SPHERE, palette.PROBE, palette.MIRROR_PLANE, palette.TRUE_PLANE, palette.TRAJECTORY}
     legend = {c for colours, _ in palette.LEGEND for c in colours}
     assert drawn <= legend, drawn - legend
     img = palette.legend_image()
@@ -787,3 +911,20 @@ def test_bulk_gui_updates_run_on_viser_s_loop_thread():
         assert handle.content == "y"
     finally:
         server.stop()
+
+
+def test_thinned_curves_keep_every_test_evaluation_and_the_last_step():
+    """The Train tab's PSNR chart sends at most ~400 points, but never drops a test evaluation."""
+    from flipviz.training.events import StepEvent
+    from flipviz.viz.run_curves import MAX_POINTS, RunCurves
+
+    curves = RunCurves()
+    for step in range(2, 5001, 2):
+        curves.add_step(StepEvent(step, 5000, 1.0, {"psnr": 20.0 + step / 5000}))
+    evals = [*range(125, 5001, 125), 3333]  # odd ones fall between the logged steps
+    for step in evals:
+        curves.add_test(step, 15.0 + step / 1000)
+    x, train, test = curves.psnr_data()
+    assert len(x) <= MAX_POINTS + len(evals) and x[-1] == 5000 and np.all(np.diff(x) > 0)
+    assert {s: t for s, t in zip(x, test) if np.isfinite(t)} == pytest.approx({s: 15 + s / 1000 for s in evals})
+    assert np.isnan(train[x == 125]).all() and np.isfinite(train[x == 250]).all()

@@ -152,6 +152,31 @@ def test_3_snap_to_a_test_view_hides_the_frustums_near_it(app, browser):
     assert "PSNR" in panel_text(browser)  # the snapped view's score
 
 
+def test_3b_click_a_pixel_of_the_snapped_view_to_probe_it(app, browser):
+    """Issue 26 item 8: a click on the snapped view reads that pixel (GT, render, error, beta^2, depth,
+    opacity) and marks its surface point. A click half a view pixel right of and below the canvas centre
+    lands in the view's pixel (H/2, W/2): the browser shows the view at its own vertical field of view."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    cid = next(iter(app.views.clients))
+    cam = app.views.clients[cid].snapped.camera
+    el = canvas_element(browser)
+    half = 0.5 * el.size["height"] / cam.height  # half a view pixel, in CSS pixels
+    ActionChains(browser).move_to_element_with_offset(el, round(half), round(half)).click().perform()
+    wait_until(lambda: app.probe.reading is not None, 60, what="the probe's reading")
+    r = app.probe.reading
+    assert (r.row, r.col) == (cam.height // 2, cam.width // 2) and r.view.startswith("test 2")
+    assert app.views.clients[cid].snapped is not None  # the click did not move the camera
+    wait_until(lambda: f"Pixel ({r.row}, {r.col})" in panel_text(browser), 20, what="the reading in the panel")
+    text = panel_text(browser)
+    assert "beta^2" in text and "opacity" in text and "ground truth RGB" in text
+    img = shot(browser, "3b_probe").astype(int)  # the cyan marker at the click
+    x0, y0 = el.location["x"] + el.size["width"] // 2, el.location["y"] + el.size["height"] // 2
+    patch = img[y0 - 30 : y0 + 30, x0 - 30 : x0 + 30]
+    cyan = (patch[..., 1] - patch[..., 0] > 60) & (patch[..., 2] - patch[..., 0] > 60)
+    assert cyan.sum() >= 4, "no probe marker drawn at the click"
+
+
 def test_4_beta2_with_its_colour_bar(app, browser):
     tab(browser, "Train")
     choose(browser, "Snapped view shows", "beta^2")
@@ -209,13 +234,15 @@ def test_6_add_and_delete_a_novel_camera(app, browser):
     wait_until(lambda: name not in app.novel.gizmos, 20, what="the camera deleted")
 
 
+def canvas_element(d):
+    """The 3D canvas element (the largest canvas of the page)."""
+    return max(d.find_elements("tag name", "canvas"), key=lambda c: c.size["width"] * c.size["height"])
+
+
 def canvas(d, img: np.ndarray) -> np.ndarray:
     """The 3D canvas's pixels in a screenshot `img` (the largest canvas of the page)."""
-    x, y, w, h = d.execute_script(
-        "const c = [...document.querySelectorAll('canvas')].sort((a, b) => b.width * b.height - a.width * a.height)[0];"
-        "const r = c.getBoundingClientRect(); const s = window.devicePixelRatio;"
-        "return [r.left * s, r.top * s, r.width * s, r.height * s].map(Math.round);"
-    )  # fmt: skip
+    r, s = canvas_element(d).rect, float(d.execute_script("return window.devicePixelRatio"))
+    x, y, w, h = (round(s * r[k]) for k in ("x", "y", "width", "height"))
     return img[y : y + h, x : x + w]
 
 

@@ -90,6 +90,11 @@ class ViserTestClient:
     async def click(self, label: str) -> None:
         await self.send("GuiUpdateMessage", uuid=self.gui[label]["uuid"], updates={"value": True})
 
+    async def click_scene(self, origin, direction, screen_pos=(0.5, 0.5)) -> None:
+        """A click in the 3D view: the world ray through the clicked pixel, as the browser sends it."""
+        await self.send("ScenePointerMessage", event_type="click", ray_origin=tuple(float(v) for v in origin),
+                        ray_direction=tuple(float(v) for v in direction), screen_pos=(tuple(screen_pos),), modifier=None)  # fmt: skip
+
     async def set_value(self, label: str, value) -> None:
         await self.send("GuiUpdateMessage", uuid=self.gui[label]["uuid"], updates={"value": value})
 

@@ -27,11 +27,18 @@ CAMERA: dict[str, RGB] = {
 MIRROR_PLANE: RGB = CAMERA["mirror"]
 TRUE_PLANE: RGB = CAMERA["mirror_true"]
 SPHERE: RGB = (120, 160, 255)
+PROBE: RGB = (0, 200, 200)  # cyan: where the pixel probe's ray meets the surface
 TRAJECTORY: RGB = CAMERA["mirror"]
 
 def hex_color(rgb: RGB) -> str:
     """'#rrggbb' for web widgets (charts)."""
     return "#{:02x}{:02x}{:02x}".format(*rgb)
+
+
+def series_color(i: int, n: int) -> RGB:
+    """The i-th of n distinct line colours (one per mirrored camera in a chart)."""
+    r, g, b, _ = matplotlib.colormaps["turbo"](0.1 + 0.8 * i / max(1, n - 1))
+    return round(255 * r), round(255 * g), round(255 * b)
 
 
 SCALAR_CMAP = "viridis"  # depth, opacity, beta^2, |error|, disagreement
@@ -86,6 +93,7 @@ LEGEND: tuple[tuple[tuple[RGB, ...], str], ...] = (  # (colour(s), what): every 
     ((CAMERA["upper"],), "Upper-bound cameras"),
     ((CAMERA["novel"],), "your novel cameras and keyframes"),
     ((SPHERE,), "the fitted camera sphere"),
+    ((PROBE,), "the pixel probe's point on the surface"),
     (tuple(score_color(db) for db in (SCORE_RANGE[0], sum(SCORE_RANGE) / 2, SCORE_RANGE[1])), "mirror scores: contradicts / partly / agrees"),
 )
 

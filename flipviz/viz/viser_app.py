@@ -42,11 +42,13 @@ from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent,
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
 from flipviz.viz.gui_thread import on_gui_thread
+from flipviz.viz.run_curves import RunCurves
 from flipviz.viz.viser_common import plane_to_arg
 from flipviz.viz.viser_compare import ComparePanel, finished_runs
 from flipviz.viz.viser_mirror import MirrorLesson
 from flipviz.viz.viser_novel import NovelCameras, SnapToView
 from flipviz.viz.viser_preview import LivePreview
+from flipviz.viz.viser_probe import PixelProbe
 from flipviz.viz.viser_render import RenderWorker, ViewportRenderer
 from flipviz.viz.viser_scene import GROUPS, RunScene
 from flipviz.viz.viser_train import RunChoice, TrainPanel
@@ -181,8 +183,7 @@ class App(Observer):
         self._last_images: ImagesEvent | None = None
         self._plane: Plane | None = None  # the refined mirror plane of the last StepEvent (--refine-plane)
         self._test_psnr: float | None = None
-        self._hist_step: list[float] = []
-        self._hist_psnr: list[float] = []
+        self._curves: RunCurves | None = None  # what the Train and Mirror tabs plot over the steps
         self._closing = threading.Event()
         self._ui_thread = threading.Thread(target=self._ui_loop, name="flipviz-ui", daemon=True)
         self._build_gui()
@@ -206,6 +207,7 @@ class App(Observer):
         with tabs.add_tab("Views", viser.Icon.CAMERA):
             with gui.add_folder("Snap to view"):
                 self.snap = SnapToView(self.server, self.worker, self, self._snap_client)
+                self.probe = PixelProbe(self.server, self.worker, self, after=self.snap.text)
             with gui.add_folder("Novel cameras"):
                 self.novel = NovelCameras(self.server, self.worker, self)
         with tabs.add_tab("Mirror", viser.Icon.FLIP_VERTICAL):
@@ -227,11 +229,20 @@ class App(Observer):
                 for g, cb in self.group_boxes.items():
                     cb.on_update(lambda ev, g=g: self.scene.set_visible(g, ev.target.value))
         self._hidden_for_compare: list[viser.GuiCheckboxHandle] = []
+        self.server.scene.on_click()(self._on_click)
+
+    def _on_click(self, ev: viser.SceneClickEvent) -> None:
+        """A click in a browser's 3D view probes the pixel under it, when that browser is at a snapped view."""
+        view = self.views.clients.get(ev.client_id)
+        snapped = view.snapped if view is not None else None
+        self.probe.click(snapped if snapped is not None and self.views.at(view, snapped.camera) else None,
+                         np.asarray(ev.ray_direction))  # fmt: skip
 
     def _on_unsnap(self) -> None:
         """A browser's camera left its snapped view: the frustums near it and the Views panel's images go."""
         self.scene.unhide()
         self.snap.clear()
+        self.probe.clear()
 
     def _compare_shown(self, shown: bool) -> None:
         """While Compare draws the views, the translucent plane squares are turned off (they would wash
@@ -417,10 +428,11 @@ class App(Observer):
             self.mirror.clear()
             self.preview.clear()
             self.novel.reset()
+            self.probe.clear()
             self.compare.clear()
             with self._ev_lock:
                 self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = None, None, None, None, None
-                self._hist_step, self._hist_psnr = [], []
+                self._curves = None
             out = None if self._base_out is None else next_free(f"{self._base_out}-restart{self.restarts}")
             self._start_run(replace(cfg, out=out, resume=None, rrd=None))
 
@@ -453,6 +465,7 @@ class App(Observer):
             if event is self.setup or event is self._pending_setup:
                 return
             self._pending_setup = event
+            self._curves = RunCurves.for_run(event)
 
     def on_step(self, event: StepEvent) -> None:
         with self._ev_lock:
@@ -462,16 +475,16 @@ class App(Observer):
                 self.mirror_c2w = event.mirror_c2w
             if event.plane is not None:
                 self._plane = event.plane
-            p = event.scalars.get("psnr")
-            if p is not None and np.isfinite(p):
-                self._hist_step.append(float(event.step))
-                self._hist_psnr.append(float(p))
+            if self._curves is not None:
+                self._curves.add_step(event)
 
     def on_images(self, event: ImagesEvent) -> None:
         with self._ev_lock:
             self._last_images = event
             if "test_psnr" in event.scalars:
                 self._test_psnr = float(event.scalars["test_psnr"])
+                if self._curves is not None:
+                    self._curves.add_test(event.step, self._test_psnr)
 
     def on_end(self, event: EndEvent) -> None:
         self.step = event.step
@@ -497,7 +510,6 @@ class App(Observer):
             setup, self._pending_setup = self._pending_setup, None
             if setup is not None:
                 self.setup, self.mirror_c2w, self._last_step, self._test_psnr = setup, None, None, None
-                self._hist_step, self._hist_psnr = [], []
             images, self._last_images = self._last_images, None
             step_ev = self._last_step
             plane, self._plane = self._plane, None
@@ -509,8 +521,11 @@ class App(Observer):
             self._last_mirrors = now
         if now - self._last_plot > 1.0:
             with self._ev_lock:
-                hist = (list(self._hist_step), list(self._hist_psnr))
-            self.train.set_plot(*hist)
+                curves = self._curves
+                data = (curves.psnr_data(), curves.mirror_data(), curves.plane_data()) if curves is not None else None
+            if data is not None:
+                self.train.set_plot(data[0])
+                self.mirror.set_curves(data[1], curves.mirror_vs_truth, data[2], curves.plane_vs_truth)
             self.compare.show_status()
             self._last_plot = now
         if images is not None:

@@ -61,6 +61,11 @@ ESTIMATE_HELP = (
 )
 
 
+POSE_TITLES = {True: "Mirrored cameras: rotation error (deg) vs their exact reflections",
+               False: "Mirrored cameras: rotation BA applied (deg)"}  # fmt: skip (no true plane: what BA moved)
+PLANE_TITLES = {True: "Mirror plane: error vs the true plane", False: "Mirror plane: change from its start"}
+
+
 def score_chart(est: PlaneEstimate, up: np.ndarray, size: tuple[int, int] = (400, 240)) -> np.ndarray:
     """uint8 RGB chart: the best score of the vertical planes against their normal's azimuth, the
     estimate's azimuth marked (matplotlib, drawn off-screen). Azimuth is circular with period 180 (a
@@ -123,6 +128,10 @@ class MirrorLesson:
         self.reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         self.restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
         self.table = gui.add_markdown("_Scores appear with the first image event or Score mirrors._")
+        self.curves_folder = gui.add_folder("Over training", expand_by_default=True)  # plots built per run
+        self.pose_plot: viser.GuiUplotHandle | None = None
+        self.plane_plot: viser.GuiUplotHandle | None = None
+        self._plotted: tuple = ((), ())  # (mirror, plane) data keys of the plots shown
         with gui.add_folder("Estimated plane") as self.est_folder:
             self.est_text = gui.add_markdown(ESTIMATE_HELP)
             self.est_btn = gui.add_button("Estimate plane", icon=viser.Icon.SEARCH,
@@ -215,6 +224,52 @@ class MirrorLesson:
             self._apply_plane(plane)
         self.table.content = "_Scores appear with the first image event or Score mirrors._"
         self.show_estimate(setup.plane_estimate)
+        self._build_plots(setup)
+
+    def _build_plots(self, setup: SetupEvent) -> None:
+        """This run's curves (hidden until they have points): one line per mirrored camera, and the
+        plane's angle and offset when training refines it."""
+        for plot in (self.pose_plot, self.plane_plot):
+            if plot is not None:
+                plot.remove()
+        self.pose_plot = self.plane_plot = None
+        self._plotted = ((), ())
+        names = [c.source or c.camera.name for c in setup.cameras if c.kind == "mirror_init"]
+        if not names or setup.plane is None:
+            return
+        colors = [palette.hex_color(palette.series_color(i, len(names))) for i in range(len(names))]
+        with self.curves_folder:
+            self.pose_plot = self.server.gui.add_uplot(
+                (np.zeros(1), *np.zeros((len(names), 1))),
+                ({"label": "step"}, *({"label": n, "stroke": c, "width": 1.5} for n, c in zip(names, colors))),
+                title=POSE_TITLES[False], scales={"x": {"time": False}}, aspect=1.6,
+                legend={"show": len(names) <= 8}, visible=False,
+            )  # fmt: skip
+            if self.refining:
+                self.plane_plot = self.server.gui.add_uplot(
+                    (np.zeros(1), np.zeros(1), np.zeros(1)),
+                    ({"label": "step"}, {"label": "angle (deg)", "stroke": palette.hex_color(palette.MIRROR_PLANE), "width": 2},
+                     {"label": "offset (units)", "stroke": palette.hex_color(palette.TRUE_PLANE), "width": 2, "scale": "off"}),
+                    title=PLANE_TITLES[False], scales={"x": {"time": False}, "off": {"auto": True}}, aspect=1.6,
+                    axes=({}, {}, {"scale": "off", "side": 1, "grid": {"show": False}}), visible=False,
+                )  # fmt: skip
+
+    def set_curves(self, poses: tuple[np.ndarray, ...], poses_vs_truth: bool, plane: tuple[np.ndarray, ...],
+                   plane_vs_truth: bool) -> None:  # fmt: skip
+        """The run's curves (RunCurves.mirror_data, plane_data); each sent only when it has a new step."""
+        key = tuple((len(d[0]), float(d[0][-1])) if d else () for d in (poses, plane))
+        if key == self._plotted:
+            return
+        self._plotted = key
+        for plot, data, title in (
+            (self.pose_plot, poses, POSE_TITLES[poses_vs_truth]), (self.plane_plot, plane, PLANE_TITLES[plane_vs_truth])
+        ):  # fmt: skip
+            if plot is None or len(data) < 2 or len(data[0]) < 2:
+                continue
+            if plot.title != title:
+                plot.title = title
+            plot.data = data
+            plot.visible = True
 
     def clear(self) -> None:
         with self._lock:

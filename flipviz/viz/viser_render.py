@@ -337,7 +337,7 @@ class ViewportRenderer:
         width = widths[min(pass_idx, len(widths) - 1)]
         return camera_from_viser(wxyz, pos, fov, width, max(8, round(width / aspect))), len(widths)
 
-    def _at(self, view: ClientView, cam: Camera) -> bool:
+    def at(self, view: ClientView, cam: Camera) -> bool:
         """The client's camera is at `cam`'s pose (it has not moved away from a snapped view)."""
         try:
             c2w = camera_from_viser(view.client.camera.wxyz, view.client.camera.position, 1.0, 8, 8).c2w
@@ -354,7 +354,7 @@ class ViewportRenderer:
         moving = time.monotonic() - view.last_move < self.settle_s
         if moving and self.preview_shown():  # the browser draws the 3D preview meanwhile
             return self.request(client_id, delay=self.settle_s, debounce=True)
-        if view.snapped is not None and not self._at(view, view.snapped.camera):
+        if view.snapped is not None and not self.at(view, view.snapped.camera):
             view.snapped = None  # the camera was moved away (checked once still: a snap may animate)
             self.on_unsnap()
         got = self._camera(view, 0 if moving else pass_idx)

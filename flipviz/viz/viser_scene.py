@@ -11,6 +11,7 @@ import threading
 import numpy as np
 import viser
 
+from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.training.events import CameraInfo, SetupEvent
 from flipviz.viz import palette
@@ -31,6 +32,14 @@ KIND_GROUP = {
     "input": "inputs", "test": "tests", "mirror_init": "mirrors", "mirror_true": "mirror_true", "upper": "upper"
 }  # fmt: skip
 MAX_TRAJ_POINTS = 200
+NESTED = 1.4  # a test frustum where a mirrored camera lands: this much larger, so the two nest
+
+
+def overlaps(a: Camera, b: Camera, size: float, max_deg: float = 10.0) -> bool:
+    """Two cameras' frustums of `size` would be drawn on top of each other: centres closer than the
+    size and viewing directions within `max_deg`."""
+    cos = float(a.c2w[:3, 2] @ b.c2w[:3, 2])
+    return bool(np.linalg.norm(a.center - b.center) < size and cos > np.cos(np.radians(max_deg)))
 
 
 def plane_quad(half: float) -> tuple[np.ndarray, np.ndarray]:
@@ -86,25 +95,28 @@ class RunScene:
             if setup.true_plane is not None:
                 add_plane(scene, "/run/true_plane/quad", setup.true_plane, 0.5 * r, GROUPS["true_plane"][1], 0.15)
             counts: dict[str, int] = {}
+            mirrors = [c.camera for c in setup.cameras if c.kind == "mirror_init"] if setup.plane is not None else []
             for info in setup.cameras:
                 g = KIND_GROUP.get(info.kind)
                 if g is None or (g == "mirrors" and setup.plane is None):  # a method without mirrors
                     continue
                 k = counts.get(g, 0)
                 counts[g] = k + 1
-                h = self._add_frustum(f"/run/{g}/{k}", info, GROUPS[g][1], with_image=g != "tests")
+                # a test camera where a mirrored one lands is drawn larger, around it, not doubled on its lines
+                size = NESTED if g == "tests" and any(overlaps(info.camera, m, self.scale) for m in mirrors) else 1.0
+                h = self._add_frustum(f"/run/{g}/{k}", info, GROUPS[g][1], with_image=g != "tests", size=size)
                 self.frustums.append(h)
                 if g == "mirrors":
                     self.mirror_handles.append(h)
                     self.mirror_names.append(info.camera.name)
                     self.history.append([info.camera.center.copy()])
 
-    def _add_frustum(self, name: str, info: CameraInfo, color, with_image: bool = True):
+    def _add_frustum(self, name: str, info: CameraInfo, color, with_image: bool = True, size: float = 1.0):
         cam = info.camera
         wxyz, pos = to_viser_pose(cam.c2w)
         image = thumbnail(info.image) if (with_image and info.image is not None) else None
         return self.server.scene.add_camera_frustum(
-            name, fov=cam.fov_y, aspect=cam.width / cam.height, scale=self.scale, color=color, image=image,
+            name, fov=cam.fov_y, aspect=cam.width / cam.height, scale=size * self.scale, color=color, image=image,
             wxyz=wxyz, position=pos, thickness=0.012 * self.scale / 0.3, cast_shadow=False, receive_shadow=False,
         )  # fmt: skip
 

@@ -12,6 +12,7 @@ import viser
 from flipviz.data.scenes import SCENES
 from flipviz.training.config import METHODS, PRESETS
 from flipviz.training.events import SetupEvent, StepEvent, split_label
+from flipviz.viz import palette
 from flipviz.viz.viser_guard import guard_choice, guard_number
 
 DATA_FOLDER = "(a data folder)"
@@ -48,11 +49,13 @@ class TrainPanel:
         self.progress_md = gui.add_markdown("_Starting..._")
         self.progress_bar = gui.add_progress_bar(0.0, animated=False, color="orange")
         self.plot = gui.add_uplot(
-            (np.array([0.0, 1.0]), np.array([0.0, 0.0])),
-            ({"label": "step"}, {"label": "PSNR (train batch, dB)", "stroke": "#f07814", "width": 2}),
-            title="PSNR", scales={"x": {"time": False}}, aspect=1.6, visible=False,
+            (np.array([0.0, 1.0]), np.array([0.0, 0.0]), np.array([np.nan, np.nan])),
+            ({"label": "step"}, {"label": "train batch", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
+             {"label": "unobserved views", "stroke": palette.hex_color(palette.CAMERA["test"]), "width": 2,
+              "spanGaps": True, "points": {"show": True, "size": 6}}),
+            title="PSNR (dB)", scales={"x": {"time": False}}, aspect=1.6, visible=False,
         )  # fmt: skip
-        self._plotted: tuple[int, float, float] | None = None  # (points, first and last step) of the curve shown
+        self._plotted: tuple | None = None  # (points, last step, evaluations) of the curves shown
         self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
         self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
         with gui.add_folder("Restart", expand_by_default=True):
@@ -98,18 +101,17 @@ class TrainPanel:
         self.pause_btn.disabled = status != "running"
         self.resume_btn.disabled = status != "paused"
 
-    def set_plot(self, steps: list[float], psnr: list[float]) -> None:
-        """The run's PSNR curve; hidden until it has two points (a new run's plot starts empty, never the
-        last run's or a degenerate one); sent only when it changed."""
-        self.plot.visible = len(steps) >= 2
-        if len(steps) < 2 or (len(steps), steps[0], steps[-1]) == self._plotted:
+    def set_plot(self, data: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """The run's PSNR curves (RunCurves.psnr_data: steps, training batch, unobserved views); hidden
+        until it has two points (a new run's plot starts empty, never the last run's or a degenerate
+        one); sent only when it changed."""
+        x, _, test = data
+        self.plot.visible = len(x) >= 2
+        key = (len(x), x[-1] if len(x) else None, int(np.isfinite(test).sum()))
+        if len(x) < 2 or key == self._plotted:
             return
-        self._plotted = (len(steps), steps[0], steps[-1])
-        x, y = np.array(steps), np.array(psnr)
-        if len(x) > 400:
-            idx = np.linspace(0, len(x) - 1, 400).astype(int)
-            x, y = x[idx], y[idx]
-        self.plot.data = (x, y)
+        self._plotted = key
+        self.plot.data = data
 
     def show_progress(
         self, setup: SetupEvent | None, status: str, ev: StepEvent | None, test_psnr: float | None,

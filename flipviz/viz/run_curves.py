@@ -1,0 +1,106 @@
+"""The curves the app plots over the steps of a run, gathered from the training events.
+
+- PSNR of the training batch (every StepEvent) and of the unobserved test views (every ImagesEvent);
+- each mirrored camera's rotation error against its exact reflection through the true plane, or,
+  where no true plane is known, its change from the initial pose (what BA moved);
+- the mirror plane's angle and offset error against the true plane, or its change from where
+  training started it (only for runs that refine the plane).
+
+The trainer's thread adds (`add_step`, `add_test`); the app's UI tick reads thinned copies as uPlot
+data: one x column (the steps) and one column per series, NaN where a series has no value (uPlot
+draws its points and joins them with `spanGaps`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from flipviz.data.dataset import Plane
+from flipviz.geometry.symmetry import plane_error
+from flipviz.training.events import SetupEvent, StepEvent
+
+MAX_POINTS = 400  # per curve sent to a browser
+
+
+def thin(n: int, keep: np.ndarray | None = None, max_points: int = MAX_POINTS) -> np.ndarray:
+    """Indices of at most about `max_points` of n evenly spread rows, always with the last one and the
+    rows in `keep` (e.g. the sparse test evaluations)."""
+    idx = np.unique(np.linspace(0, n - 1, min(n, max_points)).astype(int)) if n else np.zeros(0, int)
+    return np.union1d(idx, keep) if keep is not None and len(keep) else idx
+
+
+@dataclass
+class RunCurves:
+    """One run's curves (see the module doc)."""
+
+    start_plane: Plane | None = None  # the plane training starts from (its change is plotted without truth)
+    true_plane: Plane | None = None
+    steps: list[float] = field(default_factory=list)
+    psnr: list[float] = field(default_factory=list)  # training batch, dB (NaN when not reported)
+    test: dict[float, float] = field(default_factory=dict)  # step -> PSNR of the unobserved views, dB
+    mirror_steps: list[float] = field(default_factory=list)
+    mirror_deg: list[np.ndarray] = field(default_factory=list)  # (M,) per mirror step
+    mirror_vs_truth: bool = False  # mirror_deg is the error against the exact reflections
+    plane_steps: list[float] = field(default_factory=list)
+    plane_deg: list[float] = field(default_factory=list)
+    plane_offset: list[float] = field(default_factory=list)
+
+    @classmethod
+    def for_run(cls, setup: SetupEvent) -> "RunCurves":
+        return cls(start_plane=setup.plane, true_plane=setup.true_plane)
+
+    @property
+    def plane_vs_truth(self) -> bool:
+        return self.true_plane is not None
+
+    def add_step(self, ev: StepEvent) -> None:
+        s = float(ev.step)
+        p = ev.scalars.get("psnr")
+        self.steps.append(s)
+        self.psnr.append(float(p) if p is not None and np.isfinite(p) else float("nan"))
+        deg = ev.mirror_rot_err_deg if ev.mirror_rot_err_deg is not None else ev.mirror_rot_change_deg
+        if deg is not None and (not self.mirror_deg or len(deg) == len(self.mirror_deg[0])):
+            self.mirror_vs_truth = ev.mirror_rot_err_deg is not None
+            self.mirror_steps.append(s)
+            self.mirror_deg.append(np.asarray(deg, np.float64))
+        if ev.plane is not None:
+            ref = self.true_plane if self.true_plane is not None else self.start_plane
+            if ref is not None:
+                # plane error = (angle between normals, distance of the point from the reference plane)
+                deg_off = (ev.plane_err_deg, ev.plane_err_offset) if ev.plane_err_deg is not None else plane_error(ev.plane, ref)
+                self.plane_steps.append(s)
+                self.plane_deg.append(float(deg_off[0]))
+                self.plane_offset.append(float(deg_off[1]))
+
+    def add_test(self, step: int, psnr: float) -> None:
+        if np.isfinite(psnr):
+            self.test[float(step)] = float(psnr)
+
+    # ---- uPlot data (x first, then one column per series) -----------------------------------
+    def psnr_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(steps, training-batch PSNR, test PSNR), the test column NaN between evaluations."""
+        x = np.union1d(np.asarray(self.steps), np.fromiter(self.test, float, len(self.test)))
+        train = np.full(len(x), np.nan)
+        train[np.searchsorted(x, self.steps)] = self.psnr
+        test = np.full(len(x), np.nan)
+        if self.test:
+            test[np.searchsorted(x, list(self.test))] = list(self.test.values())
+        idx = thin(len(x), np.flatnonzero(np.isfinite(test)))
+        return x[idx], train[idx], test[idx]
+
+    def mirror_data(self) -> tuple[np.ndarray, ...]:
+        """(steps, one rotation column per mirrored camera), in degrees."""
+        if not self.mirror_steps:
+            return ()
+        idx = thin(len(self.mirror_steps))
+        deg = np.stack(self.mirror_deg)[idx]
+        return (np.asarray(self.mirror_steps)[idx], *deg.T)
+
+    def plane_data(self) -> tuple[np.ndarray, ...]:
+        """(steps, angle in degrees, offset in scene units)."""
+        if not self.plane_steps:
+            return ()
+        idx = thin(len(self.plane_steps))
+        return tuple(np.asarray(a)[idx] for a in (self.plane_steps, self.plane_deg, self.plane_offset))
