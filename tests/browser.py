@@ -7,8 +7,10 @@ Software WebGL (SwiftShader), a fixed window size, and free ports for the driver
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import socket
+import threading
 import time
 from contextlib import contextmanager
 from typing import Iterator
@@ -49,6 +51,55 @@ def chromium() -> Iterator:
         yield driver
     finally:
         driver.quit()
+
+
+class CountingProxy:
+    """A TCP relay from a free local port to 127.0.0.1:`port` that records every chunk the server sends
+    back, (time.monotonic(), bytes): what a browser pointed at `self.port` receives on the wire (viser's
+    page talks to the server from a web worker, out of reach of the page's own scripts)."""
+
+    def __init__(self, port: int) -> None:
+        self.target = port
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = int(self.listener.getsockname()[1])
+        self.received: list[tuple[float, int]] = []
+        self._socks: list[socket.socket] = [self.listener]
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.listener.accept()
+            except OSError:  # closed
+                return
+            server = socket.create_connection(("127.0.0.1", self.target))
+            self._socks += [client, server]
+            threading.Thread(target=self._pump, args=(client, server, False), daemon=True).start()
+            threading.Thread(target=self._pump, args=(server, client, True), daemon=True).start()
+
+    def _pump(self, src: socket.socket, dst: socket.socket, count: bool) -> None:
+        try:
+            while data := src.recv(65536):
+                if count:
+                    self.received.append((time.monotonic(), len(data)))
+                dst.sendall(data)
+        except OSError:
+            pass
+        finally:
+            for s in (src, dst):
+                with contextlib.suppress(OSError):
+                    s.shutdown(socket.SHUT_RDWR)
+
+    def close(self) -> None:
+        for s in self._socks:
+            with contextlib.suppress(OSError):
+                s.close()
+
+    def __enter__(self) -> "CountingProxy":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def wait_until(cond, timeout: float = 60.0, every: float = 0.25, what: str = "condition"):

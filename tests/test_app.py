@@ -913,6 +913,52 @@ def test_bulk_gui_updates_run_on_viser_s_loop_thread():
         server.stop()
 
 
+def test_a_push_from_another_thread_never_walks_the_loop_s_waiters():
+    """Issue 26 item 2: viser's push() called asyncio.Event.set() from the pushing thread, which walks the
+    event's waiter deque while the loop may add to it ("deque mutated during iteration"). The app's
+    buffers wake their loop from any thread without touching the waiters off the loop."""
+    import collections
+    import threading
+
+    from flipviz.viz.gui_thread import LoopEvent, thread_safe_pushes
+
+    walked_on: list[int] = []
+
+    class Watched(collections.deque):
+        def __iter__(self):
+            walked_on.append(threading.get_ident())
+            return super().__iter__()
+
+    loop = asyncio.new_event_loop()
+    runner = threading.Thread(target=loop.run_forever, daemon=True)
+    runner.start()
+    try:
+        event = LoopEvent(loop)
+
+        async def wait() -> int:
+            event._waiters = Watched(event._waiters)
+            await event.wait()
+            return threading.get_ident()
+
+        woken = asyncio.run_coroutine_threadsafe(wait(), loop)
+        while not event._waiters:  # the waiter is in place
+            time.sleep(0.01)
+        event.set()  # from this thread, as push() does
+        assert woken.result(10) == runner.ident  # the waiter woke
+        assert walked_on and set(walked_on) == {runner.ident}, "the waiters were walked off the loop thread"
+    finally:
+        loop.call_soon_threadsafe(loop.stop)
+        runner.join(10)
+    thread_safe_pushes()  # what App does before its server: every message buffer gets one
+    import viser
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        assert isinstance(server._websock_server._broadcast_buffer.message_event, LoopEvent)
+    finally:
+        server.stop()
+
+
 def test_thinned_curves_keep_every_test_evaluation_and_the_last_step():
     """The Train tab's PSNR chart sends at most ~400 points, but never drops a test evaluation."""
     from flipviz.training.events import StepEvent

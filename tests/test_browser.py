@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from browser import chromium, chromium_available, screenshot_png, wait_until
+from browser import CountingProxy, chromium, chromium_available, screenshot_png, wait_until
 
 from flipviz.viz import palette
 from flipviz.viz.viser_app import App, AppConfig
@@ -337,3 +337,53 @@ def test_8_switch_scene(app, browser):
     img = wait_view(browser, "8_mug", lambda i: i.std() > 10)
     assert img.std() > 10
 
+
+
+def test_9_a_paused_app_goes_quiet_in_the_browser(app, browser):
+    """Issue 26 item 1: paused and settled, the page receives next to nothing (the server re-sent the
+    mirrors' poses, the BA trajectories and the plot every half second: 37 kB/s on the chair)."""
+    with CountingProxy(app.port) as proxy:  # the page loaded through a relay that counts what it receives
+        browser.get(f"http://127.0.0.1:{proxy.port}")
+        wait_until(lambda: browser.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        assert app.scene.mirror_handles  # a run with mirrors (the mug's Flip+U): their poses were the traffic
+        tab(browser, "Train")
+        button(browser, "Pause")
+        wait_until(lambda: app.status == "paused", 20, what="the pause")
+        t0 = time.monotonic()
+        quiet = lambda: time.monotonic() - (proxy.received[-1][0] if proxy.received else t0)  # noqa: E731
+        wait_until(lambda: quiet() > 6.0, 120, what="the paused page to settle")
+        n = len(proxy.received)
+        time.sleep(4.0)  # a window to measure traffic in, not a wait for an event
+        window = proxy.received[n:]
+        button(browser, "Resume")
+    assert sum(b for _, b in window) < 1000, f"{len(window)} chunks, {sum(b for _, b in window)} bytes in 4 s"
+
+
+def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory):
+    """Issue 26 item 4: the chair's estimate from 24-px inputs is doubted and its mirrors dropped; one
+    button draws them, scores them and colours them red-yellow-green, though training still ignores them."""
+    cfg = AppConfig(scene="chair", res=24, steps=100_000, batch_rays=256, no_rrd=True, port=0, images_every=0,
+                    checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("doubted") / "run")  # fmt: skip
+    doubted = App(cfg).start()
+    try:
+        wait_until(lambda: doubted.setup is not None and doubted.step > 5, 180, what="the doubted run")
+        assert doubted.setup.plane is None and doubted.setup.plane_estimate is not None  # dropped
+        browser.get(f"http://127.0.0.1:{doubted.port}")
+        wait_until(lambda: browser.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        tab(browser, "Mirror")
+        wait_until(lambda: "not confident" in panel_text(browser), 60, what="the doubted plane's note")
+
+        def score_coloured(img: np.ndarray) -> int:  # pixels in a mirror-score colour (red to green)
+            f = img.reshape(-1, 1, 3).astype(int)
+            swatch = np.array([palette.score_color(s) for s in np.linspace(*palette.SCORE_RANGE, 16)])
+            return int((np.abs(f - swatch[None]).max(-1) < 12).any(-1).sum())
+
+        before = score_coloured(viewport(shot(browser, "10_doubted")))
+        button(browser, "Show the mirrors anyway (not trained on)")
+        wait_until(lambda: any("not trained on" in k for k in doubted.mirror.scores), 120, what="the scores")
+        wait_until(lambda: "not trained on" in panel_text(browser), 30, what="the scores' table")
+        img = wait_view(browser, "10_anyway", lambda i: score_coloured(i) > before + 200, 60)
+        assert score_coloured(img) > before + 200  # the mirrored frustums, drawn in their scores' colours
+        assert not doubted.trainer.training.mirror_ids  # still not trained on
+    finally:
+        doubted.stop()

@@ -41,7 +41,7 @@ from flipviz.training.config import TrainConfig, with_preset
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
-from flipviz.viz.gui_thread import on_gui_thread
+from flipviz.viz.gui_thread import on_gui_thread, thread_safe_pushes
 from flipviz.viz.run_curves import RunCurves
 from flipviz.viz.viser_common import plane_to_arg
 from flipviz.viz.viser_compare import ComparePanel, finished_runs
@@ -158,6 +158,7 @@ class App(Observer):
         self._base_out = cfg.out  # restarts write beside it: <out>-restart1, <out>-restart2, ...
         self._first = cfg  # the command line's settings (browse roots); self.cfg follows restarts
         self._preloaded = (_scene_key(cfg), scene) if scene is not None else None  # for the first run
+        thread_safe_pushes()  # the render worker, callbacks and the UI tick all write to the browsers
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, label="flipviz", verbose=False)
         self._set_initial_camera(np.zeros(3), 4.0)
         self.port = self.server.get_port()  # the port actually bound (viser moves on when it is busy)
