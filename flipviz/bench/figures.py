@@ -64,7 +64,8 @@ def psnr_chart(rows: list[dict], methods: list[str], path: Path) -> Path:
 def gain_chart(rows: list[dict], path: Path) -> Path | None:
     """Each configuration's gain Flip+U - B/L against its mirrors' coverage of the unobserved views
     (mean angle to the nearest mirrored camera), a colour per scene: does flipping help where the
-    mirrors land near the test views?"""
+    mirrors land near the test views? Both gains: over the whole image (filled) and inside the object
+    (hollow, joined to it), since whole-image PSNR also rewards white where nothing was seen."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5.6, 3.8))
     colors = plt.get_cmap("tab10")
@@ -72,19 +73,26 @@ def gain_chart(rows: list[dict], path: Path) -> Path | None:
     for i, scene in enumerate(scenes(rows)):
         pts = []
         for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
-            g = gain(rows, scene, n)
+            g, go = gain(rows, scene, n), gain(rows, scene, n, "psnr_object")
             run = coverage_run(rows, scene, n)
             if g is not None and run is not None:
-                pts.append((metric(run, "mirror_angle_deg"), g, n))
+                pts.append((metric(run, "mirror_angle_deg"), g, go, n))
         if pts:
             drawn = True
-            x, y, ns = zip(*pts)
+            x, y, yo, _ = zip(*pts)
             ax.scatter(x, y, color=colors(i), label=scene, s=30)
-            for xi, yi, n in pts:
+            obj = [(xi, yi, v) for xi, yi, v in zip(x, y, yo) if v is not None and np.isfinite(v)]
+            if obj:
+                ox, oy, ov = zip(*obj)
+                ax.scatter(ox, ov, facecolors="none", edgecolors=colors(i), s=30)
+                ax.vlines(ox, oy, ov, color=colors(i), lw=0.6, alpha=0.6)
+            for xi, yi, _, n in pts:
                 ax.annotate(str(n), (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=7, color=colors(i))
     if not drawn:
         plt.close(fig)
         return None
+    ax.scatter([], [], color="grey", s=30, label="whole image")
+    ax.scatter([], [], facecolors="none", edgecolors="grey", s=30, label="inside the object")
     ax.axhline(0.0, color="black", lw=0.8)
     ax.set_xlabel("mean angle from a test view to the nearest mirrored camera (deg)")
     ax.set_ylabel("PSNR gain, Flip+U - B/L (dB)")

@@ -27,7 +27,8 @@ PLANE_KEYS = {  # results.csv column: the key in metrics.json's "plane" (Trainer
 METRICS = ("psnr", "ssim", "lpips")
 STRUCTURE = ("iou", "psnr_object", "depth_abs")  # training/evaluate.py: what the object itself scores
 DIGITS = {"psnr": 2, "ssim": 3, "lpips": 3, "iou": 3, "psnr_object": 2, "depth_abs": 3}
-STRUCTURE_LABELS = {"iou": "silhouette IoU", "psnr_object": "PSNR in the object", "depth_abs": "depth error"}
+LABELS = {"psnr": "PSNR", "ssim": "SSIM", "lpips": "LPIPS", "iou": "silhouette IoU", "psnr_object": "PSNR in the object",
+          "depth_abs": "depth error"}  # fmt: skip
 
 
 def metric(r: dict, key: str):
@@ -71,57 +72,69 @@ def _fmt(x, metric: str) -> str:
     return "nan" if math.isnan(x) else f"{x:.{DIGITS[metric]}f}"
 
 
+def headline_metrics(rows: list[dict]) -> list[str]:
+    """Table III's columns: PSNR, then the object's own scores beside it (those some run has: lego has
+    no true depth), then the paper's SSIM and LPIPS."""
+    have = [k for k in STRUCTURE if any(metric(r, k) is not None for r in ok_rows(rows))]
+    return ["psnr", *have, "ssim", "lpips"]
+
+
+def _mean_of(rows: list[dict], key: str) -> float | str | None:
+    """The mean of `key` over runs: the paper's metrics as they are (LPIPS may be "unavailable"), the
+    object's scores over the runs that have a finite one."""
+    if key in METRICS:
+        return _mean([r[key] for r in rows])
+    return _mean([v for r in rows if (v := metric(r, key)) is not None and math.isfinite(v)])
+
+
 def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
-    """Markdown like the paper's Table III: per scene and method, mean over configurations."""
-    names = scenes(rows)
-    head = ["Scene", "white image"] + [f"{m.upper()} {METHOD_LABELS[x]}" for m in METRICS for x in methods]
+    """Markdown of the paper's Table III, a row per scene and method (mean over configurations), with the
+    object's own scores (silhouette IoU, PSNR in the object, depth error) beside PSNR; then the mean
+    over scenes and the paper's mean."""
+    names, keys = scenes(rows), headline_metrics(rows)
+    head = ["Scene", "Method", *(LABELS[k] for k in keys)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     ours: dict[tuple, list] = {}
     papers: dict[tuple, list] = {}
     for scene in names:
         prow = paper_scene(rows, scene)
-        cells = [scene + (f" ({prow})" if prow and prow.lower() != scene.lower() else ""), blank_cell(rows, scene)]
-        for metric in METRICS:
-            for m in methods:
-                rs = main_rows(rows, scene, m)
-                v = _mean([r[metric] for r in rs])
-                if v is not None:
-                    ours.setdefault((metric, m), []).append(v)
-                cell = _fmt(v, metric)
-                if rs and len(rs) < n_configs:
-                    cell += f" †{len(rs)}/{n_configs}"
-                if prow:
-                    p = TABLE3[metric][prow][m]
-                    papers.setdefault((metric, m), []).append(p)
-                    cell += f" ({p:.{DIGITS[metric]}f})"
-                cells.append(cell)
-        lines.append("| " + " | ".join(cells) + " |")
-    all_paper = all(paper_scene(rows, s) for s in names)
-    cells = ["**Mean**", ""]
-    for metric in METRICS:
+        label = scene + (f" ({prow})" if prow and prow.lower() != scene.lower() else "")
+        blank = {"psnr": metric_blank(rows, scene, "blank_psnr"), "ssim": metric_blank(rows, scene, "blank_ssim")}
+        lines.append(f"| {label} | white image | " + " | ".join(_fmt(blank.get(k), k) if k in blank else "" for k in keys) + " |")
         for m in methods:
-            cell = _fmt(_mean(ours.get((metric, m), [])), metric)
-            if all_paper and papers.get((metric, m)):
-                cell += f" ({_fmt(_mean(papers[(metric, m)]), metric)})"
+            rs = main_rows(rows, scene, m)
+            cells = [label, METHOD_LABELS[m] + (f" †{len(rs)}/{n_configs}" if rs and len(rs) < n_configs else "")]
+            for key in keys:
+                v = _mean_of(rs, key)
+                if v is not None:
+                    ours.setdefault((key, m), []).append(v)
+                cell = _fmt(v, key)
+                if prow and key in METRICS:
+                    p = TABLE3[key][prow][m]
+                    papers.setdefault((key, m), []).append(p)
+                    cell += f" ({p:.{DIGITS[key]}f})"
+                cells.append(cell)
+            lines.append("| " + " | ".join(cells) + " |")
+    all_paper = all(paper_scene(rows, s) for s in names)
+    for m in methods if len(names) > 1 else ():  # the mean over scenes
+        cells = ["**Mean**", METHOD_LABELS[m]]
+        for key in keys:
+            cell = _fmt(_mean(ours.get((key, m), [])), key)
+            if all_paper and papers.get((key, m)):
+                cell += f" ({_fmt(_mean(papers[(key, m)]), key)})"
             cells.append(cell)
-    lines.append("| " + " | ".join(cells) + " |")
-    lines.append(
-        "| Paper mean (8 scenes) | | "
-        + " | ".join(f"({TABLE3[metric]['Mean'][m]:.{DIGITS[metric]}f})" for metric in METRICS for m in methods)
-        + " |"
-    )
+        lines.append("| " + " | ".join(cells) + " |")
+    for m in methods:
+        paper = [f"({TABLE3[k]['Mean'][m]:.{DIGITS[k]}f})" if k in METRICS else "" for k in keys]
+        lines.append(f"| Paper mean (8 scenes) | {METHOD_LABELS[m]} | " + " | ".join(paper) + " |")
     return "\n".join(lines)
 
 
-def blank_cell(rows: list[dict], scene: str) -> str:
-    """PSNR / SSIM of an all-white image on the scene's unobserved views, mean over its configurations
-    (each run scores it on its own test views: the same for every method of a configuration)."""
-    per_config = {r["config"]: r for r in ok_rows(rows) if r["scene"] == scene and metric(r, "blank_psnr") is not None}
-    if not per_config:
-        return "-"
-    psnr = sum(metric(r, "blank_psnr") for r in per_config.values()) / len(per_config)
-    ssim_ = sum(metric(r, "blank_ssim") for r in per_config.values()) / len(per_config)
-    return f"{psnr:.2f} / {ssim_:.3f}"
+def metric_blank(rows: list[dict], scene: str, key: str) -> float | None:
+    """An all-white image's score (blank_psnr, blank_ssim) on the scene's unobserved views, mean over its
+    configurations (each run scores it on its own test views: the same for every method of a configuration)."""
+    per_config = {r["config"]: metric(r, key) for r in ok_rows(rows) if r["scene"] == scene and metric(r, key) is not None}
+    return sum(per_config.values()) / len(per_config) if per_config else None
 
 
 def table2(rows: list[dict]) -> str:
@@ -145,20 +158,6 @@ def table2(rows: list[dict]) -> str:
         ours = " | ".join(_fmt(_mean(per_scene[m]), m) for m in METRICS)
         paper = f"{p['psnr']:.3f} | {p['ssim']:.3f} | {p['lpips']:.3f}"
         lines.append(f"| {tick(ba)} | {tick(u)} | {ours} | {n} | {paper} |")
-    return "\n".join(lines)
-
-
-def structure_table(rows: list[dict], methods: list[str]) -> str:
-    """Per scene and method, mean over configurations: silhouette IoU, PSNR in the object, depth error."""
-    head = ["Scene"] + [f"{STRUCTURE_LABELS[k]} {METHOD_LABELS[m]}" for k in STRUCTURE for m in methods]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for scene in scenes(rows):
-        cells = [scene]
-        for k in STRUCTURE:
-            for m in methods:
-                vals = [v for r in main_rows(rows, scene, m) if (v := metric(r, k)) is not None and math.isfinite(v)]
-                cells.append(_fmt(sum(vals) / len(vals), k) if vals else "-")
-        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -254,8 +253,11 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
         "",
         "## Table III: unobserved views, mean over configurations",
         "",
-        "Cells: ours (paper). *white image*: PSNR / SSIM of an all-white image on the same views, what a"
-        " render showing nothing scores. The paper's numbers are shown for NeRF-synthetic scenes read from a folder;"
+        "Cells: ours (paper). *white image*: PSNR and SSIM of an all-white image on the same views, what a"
+        " render showing nothing scores. Whole-image PSNR rewards keeping unobserved space white, so the object's"
+        " own scores stand beside it: *silhouette IoU* (rendered opacity > 0.5 against the true alpha), *PSNR in"
+        " the object* (over the union of both silhouettes) and, for built-in scenes, *depth error* (mean"
+        " |depth error| over the true silhouette, world units). The paper's numbers are shown for NeRF-synthetic scenes read from a folder;"
         " the paper trained vanilla NeRF for 50k iterations, so compare trends, not values."
         " †k/n: only k of n configurations finished."
         + (" LPIPS n/a: AlexNet/LPIPS weights were not available." if lpips_na else ""),
@@ -265,11 +267,6 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
     ]
     if cfg.ablation:
         parts += ["## Table II: ablation of Flip+U (mean over scenes and configurations)", "", table2(rows), ""]
-    parts += ["## The object itself: silhouette, PSNR inside it, depth (mean over configurations)", "",
-              "PSNR over the whole image rewards keeping unobserved space white; these score the object: IoU of the "
-              "rendered opacity > 0.5 against the true alpha, PSNR over the union of both silhouettes, and the mean "
-              "|depth error| (world units) over the true silhouette (built-in scenes only: lego has no true depth).",
-              "", structure_table(rows, methods), ""]  # fmt: skip
     parts += ["## PSNR per configuration, and why a configuration gains or loses", "",
               "Coverage: the angle from each unobserved view to the nearest mirrored camera (about the object's centre), "
               "mean over the 8 views, and the share of views within 30 degrees of one.", "",
