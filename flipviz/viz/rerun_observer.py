@@ -92,6 +92,8 @@ class RerunObserver(Observer):
         self._closed = False
         self._file_stopped = False  # the disk was nearly full: the file was finalised early
         self._frustum_scale = 0.3
+        self._scalars: dict[str, tuple[list[int], list[np.ndarray]]] = {}  # per entity: steps, values (not yet sent)
+        self._poses: dict[str, tuple[list[int], list[np.ndarray]]] = {}  # per mirrored camera: steps, c2w (not yet sent)
         self._plane_size, self._plane_moves = 1.0, False  # set by the SetupEvent
         self._series_colors = [tuple(int(255 * c) for c in rgb[:3]) for rgb in matplotlib.colormaps["tab10"].colors]
 
@@ -110,8 +112,28 @@ class RerunObserver(Observer):
             self.rec.set_sinks(*sinks, default_blueprint=blueprint)
         self._sinks_ready = True
 
+    def _scalar(self, path: str, step: int, value) -> None:
+        """A step's scalar (or one per mirror), held back and sent with the others of its entity as one
+        column (`_send_columns`): a few large chunks instead of one per step and entity."""
+        steps, values = self._scalars.setdefault(path, ([], []))
+        steps.append(int(step))
+        values.append(np.atleast_1d(np.asarray(value, np.float64)))
+
+    def _send_columns(self) -> None:
+        """Send the held-back curves and mirrored poses, one column per entity."""
+        for path, (steps, values) in self._scalars.items():
+            if steps and len({len(v) for v in values}) == 1:  # one width per entity (the mirrors do not change)
+                self.rec.send_columns(path, indexes=[rr.TimeColumn(STEP, sequence=steps)],
+                                      columns=rr.Scalars.columns(scalars=np.stack(values)))  # fmt: skip
+        for path, (steps, poses) in self._poses.items():
+            T = np.stack(poses)  # (N, 4, 4) camera-to-world
+            self.rec.send_columns(path, indexes=[rr.TimeColumn(STEP, sequence=steps)],
+                                  columns=rr.Transform3D.columns(translation=T[:, :3, 3], mat3x3=T[:, :3, :3]))  # fmt: skip
+        self._scalars, self._poses = {}, {}
+
     def _maybe_flush(self, force: bool = False) -> None:
         if force or time.monotonic() - self._last_flush >= self.opts.flush_every_s:
+            self._send_columns()
             try:
                 self.rec.flush(timeout_sec=5.0)
             except Exception:  # a slow disk or viewer must not stop training
@@ -266,21 +288,23 @@ class RerunObserver(Observer):
             rec.set_time(STEP, sequence=event.step)
             for k, v in event.scalars.items():
                 group = "lr" if k.startswith("lr") else "train"
-                rec.log(f"curves/{group}/{entity_name(k)}", rr.Scalars(float(v)))
+                self._scalar(f"curves/{group}/{entity_name(k)}", event.step, v)
             if event.mirror_c2w is not None and self._mirror_names:
                 self._log_mirrors(event)
             if event.plane is not None and self._plane_moves:
                 self._log_plane("world/mirror_plane", event.plane, palette.MIRROR_PLANE, filled=True, static=False)
                 for k in ("plane_err_deg", "plane_err_offset"):
                     if getattr(event, k) is not None:
-                        rec.log(f"curves/plane/{k.removeprefix('plane_')}", rr.Scalars(float(getattr(event, k))))
+                        self._scalar(f"curves/plane/{k.removeprefix('plane_')}", event.step, getattr(event, k))
             self._maybe_flush()
 
     def _log_mirrors(self, e: StepEvent) -> None:
         rec = self.rec
         c2w = np.asarray(e.mirror_c2w, dtype=np.float64)
-        for name, T in zip(self._mirror_names, c2w):
-            rec.log(f"world/cameras/mirror/{name}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        for name, T in zip(self._mirror_names, c2w):  # sent as columns with the curves (`_send_columns`)
+            steps, poses = self._poses.setdefault(f"world/cameras/mirror/{name}", ([], []))
+            steps.append(int(e.step))
+            poses.append(T.copy())
         centers = c2w[:, :3, 3]
         if self._prev_centers is not None and len(self._prev_centers) == len(centers):
             # One new segment per camera per step: the file grows linearly with the steps.
@@ -290,7 +314,7 @@ class RerunObserver(Observer):
         for q in ("rot_change_deg", "trans_change", "rot_err_deg", "trans_err"):
             v = getattr(e, f"mirror_{q}")
             if v is not None:
-                rec.log(f"curves/mirror/{q}", rr.Scalars(np.asarray(v, dtype=np.float64)))
+                self._scalar(f"curves/mirror/{q}", e.step, v)
 
     def on_images(self, event: ImagesEvent) -> None:
         with self._lock:
@@ -347,6 +371,8 @@ class RerunObserver(Observer):
             if not self._sinks_ready and self.opts.path is not None:  # stopped in setup (e.g. the plane estimate)
                 self.rec.set_sinks(rr.FileSink(str(self.opts.path)))  # still a readable recording, not an empty file
                 self.rec.log("log", rr.TextLog("the run stopped during its setup, before training began", level="WARN"))
+            if not self._silent:
+                self._send_columns()
             self.rec.flush(timeout_sec=5.0)
             self.rec.disconnect()
         except Exception:
