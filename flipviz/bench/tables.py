@@ -257,8 +257,8 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
         " render showing nothing scores. Whole-image PSNR rewards keeping unobserved space white, so the object's"
         " own scores stand beside it: *silhouette IoU* (rendered opacity > 0.5 against the true alpha), *PSNR in"
         " the object* (over the union of both silhouettes) and, for built-in scenes, *depth error* (mean"
-        " |depth error| over the true silhouette, world units). The paper's numbers are shown for NeRF-synthetic scenes read from a folder;"
-        " the paper trained vanilla NeRF for 50k iterations, so compare trends, not values."
+        " |depth error| over the true silhouette, world units). The paper's numbers are shown for NeRF-synthetic"
+        " scenes read from a folder; the paper trained vanilla NeRF for 50k iterations, so compare trends, not values."
         " †k/n: only k of n configurations finished."
         + (" LPIPS n/a: AlexNet/LPIPS weights were not available." if lpips_na else ""),
         "",

@@ -112,12 +112,17 @@ class RerunObserver(Observer):
             self.rec.set_sinks(*sinks, default_blueprint=blueprint)
         self._sinks_ready = True
 
-    def _scalar(self, path: str, step: int, value) -> None:
-        """A step's scalar (or one per mirror), held back and sent with the others of its entity as one
-        column (`_send_columns`): a few large chunks instead of one per step and entity."""
-        steps, values = self._scalars.setdefault(path, ([], []))
+    @staticmethod
+    def _hold(held: dict[str, tuple[list[int], list[np.ndarray]]], path: str, step: int, value: np.ndarray) -> None:
+        """A step's value of an entity, held back until `_send_columns` sends the entity's values as one
+        column: a few large chunks instead of one per step and entity."""
+        steps, values = held.setdefault(path, ([], []))
         steps.append(int(step))
-        values.append(np.atleast_1d(np.asarray(value, np.float64)))
+        values.append(value)
+
+    def _scalar(self, path: str, step: int, value) -> None:
+        """A step's scalar (or one per mirror), held back (`_hold`)."""
+        self._hold(self._scalars, path, step, np.atleast_1d(np.asarray(value, np.float64)))
 
     def _send_columns(self) -> None:
         """Send the held-back curves and mirrored poses, one column per entity."""
@@ -301,10 +306,8 @@ class RerunObserver(Observer):
     def _log_mirrors(self, e: StepEvent) -> None:
         rec = self.rec
         c2w = np.asarray(e.mirror_c2w, dtype=np.float64)
-        for name, T in zip(self._mirror_names, c2w):  # sent as columns with the curves (`_send_columns`)
-            steps, poses = self._poses.setdefault(f"world/cameras/mirror/{name}", ([], []))
-            steps.append(int(e.step))
-            poses.append(T.copy())
+        for name, T in zip(self._mirror_names, c2w):  # sent as columns with the curves (`_hold`)
+            self._hold(self._poses, f"world/cameras/mirror/{name}", e.step, T.copy())
         centers = c2w[:, :3, 3]
         if self._prev_centers is not None and len(self._prev_centers) == len(centers):
             # One new segment per camera per step: the file grows linearly with the steps.
