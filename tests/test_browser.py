@@ -315,6 +315,30 @@ def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, tmp_path_fac
     wait_until(lambda: app.status == "running", 30, what="A running again")
 
 
+def test_6c_a_keyframe_at_your_pose_is_hidden_and_every_colour_is_in_the_legend(app, browser):
+    """Issue 26 item 5: a keyframe added at your own pose drew a thick magenta frame over your view, and
+    magenta was not in the legend. Now the frustum at your camera is hidden and the Show tab's legend
+    has a swatch of every colour the 3D view draws."""
+
+    def magenta(img: np.ndarray) -> int:
+        return int((np.abs(img.astype(int) - np.array(palette.CAMERA["novel"])).max(-1) < 30).sum())
+
+    tab(browser, "Compare")
+    before = magenta(canvas(browser, shot(browser, "6c_before")))  # the whole canvas: the frame ran along its edges
+    button(browser, "Add keyframe")
+    wait_until(lambda: len(app.compare.keyframes) == 1, 20, what="the keyframe")
+    time.sleep(1.0)  # the UI tick (4 a second) decides the frustum's visibility
+    assert magenta(canvas(browser, shot(browser, "6c_keyframe"))) <= before + 50  # no magenta frame over the view
+    assert not app.compare._key_handles[0].visible  # at the browser's own camera: hidden
+    button(browser, "Clear keyframes")
+    tab(browser, "Show")
+    img = shot(browser, "6c_legend")
+    panel = img[:, int(0.72 * img.shape[1]) :].reshape(-1, 1, 3).astype(int)  # the docked control panel
+    for colours, what in palette.LEGEND:
+        for c in colours:
+            assert (np.abs(panel - np.array(c)).max(-1) < 8).sum() >= 20, f"no swatch of {c} ({what}) in the legend"
+
+
 def test_7_restart_with_bl(app, browser):
     tab(browser, "Train")
     choose(browser, "Method", "bl")
