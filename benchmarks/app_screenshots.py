@@ -15,7 +15,10 @@
 6. app_plane.png: the chair trained from a mirror plane turned 10 degrees (the plane demo): the
    Mirror tab while training pulls the plane back, its trail and its error;
 7. app_fog.png: the chair's B/L in flipviz's setting (A) side by side with B/L in the official code's
-   setting (B, trained from the Compare tab), at an unobserved view: the fog of issue 22.
+   setting (B, trained from the Compare tab), at an unobserved view: the fog of issue 22;
+8. app_probe.png: snapped to an unobserved view, a pixel of the chair clicked: the pixel probe's reading
+   and its marker; app_curves.png: the Mirror tab's charts over the steps (each mirrored camera's
+   rotation error, the refined plane's error).
 """
 
 from __future__ import annotations
@@ -41,9 +44,9 @@ class Args:
     out: Path = ROOT / "assets"
     steps_before: int = 700
     """Training steps before the first screenshot."""
-    shots: str = "orbit,capture,compare,plane,fog"
+    shots: str = "orbit,capture,compare,plane,fog,probe"
     """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png; compare: app_compare.png;
-    plane: app_plane.png; fog: app_fog.png."""
+    plane: app_plane.png; fog: app_fog.png; probe: app_probe.png, app_curves.png."""
 
 
 def main(args: Args) -> None:
@@ -58,6 +61,8 @@ def main(args: Args) -> None:
         plane_shot(args)
     if "fog" in args.shots:
         fog_shot(args)
+    if "probe" in args.shots:
+        probe_shots(args)
     print(f"screenshots in {args.out}")
 
 
@@ -173,6 +178,31 @@ def fog_shot(args: Args) -> None:
             button(d, "Train B next to this run")
             wait_until(lambda: app.compare.b is not None and not app.compare.b.thread.is_alive(), 900, what="training B")
             side_by_side_shot(d, app, args.out / "app_fog.png")
+    finally:
+        app.stop()
+
+
+def probe_shots(args: Args) -> None:
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
+    app = App(cfg).start()
+    try:
+        wait_until(lambda: app.step >= args.steps_before, 600, what="training")
+        with chromium() as d:
+            open_page(d, app.port, settle_s=6.0)
+            snap_to(d, app, "test 3")
+            time.sleep(4.0)
+            el = max(d.find_elements("tag name", "canvas"), key=lambda c: c.size["width"] * c.size["height"])
+            ActionChains(d).move_to_element_with_offset(el, -20, 40).click().perform()  # the chair's seat
+            wait_until(lambda: app.probe.reading is not None, 60, what="the probe's reading")
+            time.sleep(3.0)
+            (args.out / "app_probe.png").write_bytes(screenshot_png(d))
+            tab(d, "Mirror")
+            folder = d.find_element("xpath", "//*[normalize-space()='Over training']")
+            d.execute_script("arguments[0].scrollIntoView({block: 'start'});", folder)
+            time.sleep(3.0)
+            (args.out / "app_curves.png").write_bytes(screenshot_png(d))
     finally:
         app.stop()
 

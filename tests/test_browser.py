@@ -126,6 +126,26 @@ def test_1_load_shows_training_and_a_rendered_view(app, browser):
     assert img.std() > 10  # not one flat colour
 
 
+CHART = """
+const c = Object.values(window.__viserTestpoints?.uplots ?? {}).map(t => t.chart)
+  .find(u => u.root.querySelector('.u-title')?.textContent === arguments[0]);
+return c ? [c.scales.y.min, c.scales.y.max, c.data.length, Array.from(c.data[2] ?? []).filter(Number.isFinite).length] : null;
+"""  # a uPlot chart of the page by its title: its y range, its columns, the finite values of its third
+
+
+def test_1b_the_psnr_chart_draws_the_batch_and_the_unobserved_views(app, browser):
+    """Issue 26 item 8: the Train tab's chart has both curves, on a y axis Chromium draws. The test curve is
+    NaN between evaluations, and uPlot's own range failed on a first NaN: no axis and no curve at all."""
+    tab(browser, "Train")
+    got = wait_until(lambda: (r := browser.execute_script(CHART, "PSNR (dB)")) and r[3] >= 1 and r, 120,
+                     what="a chart with a test evaluation")  # fmt: skip
+    lo, hi, columns, evaluations = got
+    x, train, test = app.train.plot.data
+    assert columns == 3 and lo is not None and hi is not None and lo < hi
+    finite = np.concatenate([train[np.isfinite(train)], test[np.isfinite(test)]])
+    assert lo <= finite.min() and finite.max() <= hi  # every point of both curves is on the chart
+
+
 def test_2_live_3d_preview_draws_without_server_renders(app, browser):
     tab(browser, "Train")
     checkbox(browser, "Render my view", False)

@@ -40,6 +40,13 @@ def fmt_time(s: float) -> str:
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
 
 
+def psnr_scales(rng: tuple[float, float]) -> dict:
+    """The PSNR chart's scales: both curves on one fixed range. The test curve is NaN between
+    evaluations (uPlot joins its points with spanGaps), and uPlot's automatic range fails on a
+    series whose first value is NaN (no y axis, no curve: seen in Chromium), so the server sets it."""
+    return {"x": {"time": False}, "y": {"auto": False, "range": rng}, "test": {"auto": False, "range": rng}}
+
+
 class TrainPanel:
     def __init__(
         self, server: viser.ViserServer, on_pause: Callable[[], None], on_resume: Callable[[], None],
@@ -52,10 +59,11 @@ class TrainPanel:
             (np.array([0.0, 1.0]), np.array([0.0, 0.0]), np.array([np.nan, np.nan])),
             ({"label": "step"}, {"label": "train batch", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
              {"label": "unobserved views", "stroke": palette.hex_color(palette.CAMERA["test"]), "width": 2,
-              "spanGaps": True, "points": {"show": True, "size": 6}}),
-            title="PSNR (dB)", scales={"x": {"time": False}}, aspect=1.6, visible=False,
+              "spanGaps": True, "points": {"show": True, "size": 6}, "scale": "test"}),
+            title="PSNR (dB)", scales=psnr_scales((0.0, 1.0)), aspect=1.6, visible=False,
         )  # fmt: skip
         self._plotted: tuple | None = None  # (points, last step, evaluations) of the curves shown
+        self._range: tuple[float, float] = (0.0, 1.0)
         self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
         self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
         with gui.add_folder("Restart", expand_by_default=True):
@@ -111,6 +119,11 @@ class TrainPanel:
         if len(x) < 2 or key == self._plotted:
             return
         self._plotted = key
+        finite = np.concatenate([c[np.isfinite(c)] for c in data[1:]])
+        rng = (float(np.floor(finite.min())) - 1.0, float(np.ceil(finite.max())) + 1.0)  # whole dB: rarely changes
+        if rng != self._range:
+            self._range = rng
+            self.plot.scales = psnr_scales(rng)
         self.plot.data = data
 
     def show_progress(
