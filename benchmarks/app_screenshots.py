@@ -195,7 +195,7 @@ def probe_shots(args: Args) -> None:
             time.sleep(4.0)
             el = max(d.find_elements("tag name", "canvas"), key=lambda c: c.size["width"] * c.size["height"])
             ActionChains(d).move_to_element_with_offset(el, -20, 40).click().perform()  # the chair's seat
-            wait_until(lambda: app.probe.reading is not None, 60, what="the probe's reading")
+            wait_until(lambda: app.probe.reading is not None, 60, what=f"the probe's reading ({app.probe.text.content})")
             time.sleep(3.0)
             (args.out / "app_probe.png").write_bytes(screenshot_png(d))
             tab(d, "Mirror")
