@@ -26,15 +26,17 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
 from browser import chromium, screenshot_png, wait_until  # noqa: E402
-from test_browser import button, checkbox, choose, tab  # noqa: E402
+from test_browser import button, canvas_element, checkbox, choose, tab  # noqa: E402
 
 from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
 
@@ -182,63 +184,62 @@ def fog_shot(args: Args) -> None:
         app.stop()
 
 
+@contextmanager
+def chair_in_browser(args: Args) -> Iterator[tuple[App, object]]:
+    """The chair training at the defaults, past `args.steps_before` steps, open in headless Chromium."""
+    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
+    app = App(cfg).start()
+    try:
+        wait_until(lambda: app.step >= args.steps_before, 600, what="training")
+        with chromium() as d:
+            open_page(d, app.port, settle_s=6.0)
+            yield app, d
+    finally:
+        app.stop()
+
+
 def probe_shots(args: Args) -> None:
     from selenium.webdriver.common.action_chains import ActionChains
 
-    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
-    app = App(cfg).start()
-    try:
-        wait_until(lambda: app.step >= args.steps_before, 600, what="training")
-        with chromium() as d:
-            open_page(d, app.port, settle_s=6.0)
-            snap_to(d, app, "test 3")
-            time.sleep(4.0)
-            el = max(d.find_elements("tag name", "canvas"), key=lambda c: c.size["width"] * c.size["height"])
-            ActionChains(d).move_to_element_with_offset(el, -20, 40).click().perform()  # the chair's seat
-            wait_until(lambda: app.probe.reading is not None, 60, what=f"the probe's reading ({app.probe.text.content})")
-            time.sleep(3.0)
-            (args.out / "app_probe.png").write_bytes(screenshot_png(d))
-            tab(d, "Mirror")
-            folder = d.find_element("xpath", "//*[normalize-space()='Over training']")
-            d.execute_script("arguments[0].scrollIntoView({block: 'start'});", folder)
-            time.sleep(3.0)
-            (args.out / "app_curves.png").write_bytes(screenshot_png(d))
-    finally:
-        app.stop()
+    with chair_in_browser(args) as (app, d):
+        snap_to(d, app, "test 3")
+        time.sleep(4.0)
+        ActionChains(d).move_to_element_with_offset(canvas_element(d), -20, 40).click().perform()  # the seat
+        wait_until(lambda: app.probe.reading is not None, 60, what=f"the probe's reading ({app.probe.text.content})")
+        time.sleep(3.0)
+        (args.out / "app_probe.png").write_bytes(screenshot_png(d))
+        tab(d, "Mirror")
+        folder = d.find_element("xpath", "//*[normalize-space()='Over training']")
+        d.execute_script("arguments[0].scrollIntoView({block: 'start'});", folder)
+        time.sleep(3.0)
+        (args.out / "app_curves.png").write_bytes(screenshot_png(d))
 
 
 def orbit_shots(args: Args) -> None:
-    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
-    app = App(cfg).start()
-    try:
-        wait_until(lambda: app.step >= args.steps_before, 600, what="training")
-        with chromium() as d:
-            open_page(d, app.port, settle_s=6.0)
-            (args.out / "app.png").write_bytes(screenshot_png(d))
-            snap_to(d, app, "test 3")
-            tab(d, "Train")
-            for v in app.views.clients.values():
-                v.gui["blend"].value = 0.5
-            time.sleep(4.0)
-            (args.out / "app_snapped.png").write_bytes(screenshot_png(d))
-            choose(d, "Scene", "mug")
-            button(d, "Restart training")
-            wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before, 600,
-                       what="the mug")  # fmt: skip
-            open_page(d, app.port, settle_s=4.0)  # a new scene: load the page afresh
-            tab(d, "Mirror")
-            if app.mirror.dropped:  # the default gate doubts the mug's plane: its mirrors, drawn anyway
-                button(d, "Show the mirrors anyway (not trained on)")
-                wait_until(lambda: any("not trained on" in k for k in app.mirror.scores), 120, what="the scores")
-            else:
-                choose(d, "Mirrored frustums show", "disagreement")
-                checkbox(d, "Show plane preview", False)
-                button(d, "Score mirrors")
-                wait_until(lambda: any("now" in k for k in app.mirror.scores), 120, what="the scores")
-            time.sleep(3.0)
-            (args.out / "app_mirror.png").write_bytes(screenshot_png(d))
-    finally:
-        app.stop()
+    with chair_in_browser(args) as (app, d):
+        (args.out / "app.png").write_bytes(screenshot_png(d))
+        snap_to(d, app, "test 3")
+        tab(d, "Train")
+        for v in app.views.clients.values():
+            v.gui["blend"].value = 0.5
+        time.sleep(4.0)
+        (args.out / "app_snapped.png").write_bytes(screenshot_png(d))
+        choose(d, "Scene", "mug")
+        button(d, "Restart training")
+        wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before, 600,
+                   what="the mug")  # fmt: skip
+        open_page(d, app.port, settle_s=4.0)  # a new scene: load the page afresh
+        tab(d, "Mirror")
+        if app.mirror.dropped:  # the default gate doubts the mug's plane: its mirrors, drawn anyway
+            button(d, "Show the mirrors anyway (not trained on)")
+            wait_until(lambda: any("not trained on" in k for k in app.mirror.scores), 120, what="the scores")
+        else:
+            choose(d, "Mirrored frustums show", "disagreement")
+            checkbox(d, "Show plane preview", False)
+            button(d, "Score mirrors")
+            wait_until(lambda: any("now" in k for k in app.mirror.scores), 120, what="the scores")
+        time.sleep(3.0)
+        (args.out / "app_mirror.png").write_bytes(screenshot_png(d))
 
 
 if __name__ == "__main__":
