@@ -20,6 +20,7 @@ _SLOT = 0
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 _RUNNING = False  # a run is under way in this worker
 _STOPPING = False  # this worker was told to stop: no further run starts in it
+_CTRL_C = False  # Ctrl-C reached the process group: no further run starts in this worker
 STOP_GRACE_S = 30.0  # after an interrupt, how long a worker may take to save its checkpoint before it is killed
 
 
@@ -37,16 +38,24 @@ def _stop_training(signum: int, frame) -> None:
         raise KeyboardInterrupt
 
 
+def _ctrl_c(signum: int, frame) -> None:
+    """Ctrl-C in a terminal reaches every worker at once with the bench. The run under way goes on until
+    the bench relays SIGTERM (so it saves its checkpoint), but no queued run starts meanwhile: a worker
+    that finished its run in that moment had started the next one (seen on a busy CI machine)."""
+    global _CTRL_C
+    _CTRL_C = True
+
+
 def _init_worker(threads: int, slots) -> None:
     """Pool initializer: thread share, progress row, and exit when the bench process dies.
 
-    A worker ignores Ctrl-C (the terminal sends it to the whole process group; the bench relays it
-    as SIGTERM) and stops its run on SIGTERM or SIGHUP, whoever sends them.
+    On Ctrl-C (the terminal sends it to the whole process group; the bench relays it as SIGTERM) a
+    worker only starts no further run; it stops its run on SIGTERM or SIGHUP, whoever sends them.
     """
     global _SLOT
     import torch
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, _ctrl_c)
     signal.signal(signal.SIGTERM, _stop_training)
     signal.signal(signal.SIGHUP, _stop_training)
     torch.set_num_threads(max(1, threads))
@@ -65,7 +74,7 @@ def _init_worker(threads: int, slots) -> None:
 def _run_in_worker(task: RunTask) -> dict:
     global _RUNNING
     interrupted = {"key": task.key, "status": "interrupted", "error": "interrupted before it started"}
-    if _STOPPING:  # a task the pool had already queued to this worker (cancel() cannot reach it)
+    if _STOPPING or _CTRL_C:  # a task the pool had already queued to this worker (cancel() cannot reach it)
         return interrupted
     task.slot = _SLOT
     _RUNNING = True
