@@ -90,7 +90,10 @@ def _run_train(cfg: TrainConfig) -> int:
                        f"{plane['refined_error_deg']:.2f}° / {plane['refined_error_offset']:.3f} after")  # fmt: skip
             print(f"[flipviz] mirror plane refined during training: turned {plane['refined_change_deg']:.2f}°, "
                   f"moved {plane['refined_change_offset']:.3f}{err}")  # fmt: skip
-        if plane.get("trained") is False:
+        if plane.get("dropped_at") is not None:
+            print(f"[flipviz] mirrored views dropped at step {plane['dropped_at']}: they disagreed with the inputs "
+                  f"(disagreement {plane['disagreement']:.2f} > --disagreement-limit {cfg.disagreement_limit:g})")  # fmt: skip
+        elif plane.get("trained") is False:
             print(f"[flipviz] trained without mirrored views: the estimated plane's confidence is "
                   f"{metrics['plane']['confidence']:.2f} (--unconfident-plane use keeps them)")  # fmt: skip
         if rerun is not None and rerun.opts.path is not None:

@@ -623,12 +623,13 @@ def test_train_b_next_to_the_running_a(app):
 
 
 def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_path):
-    """The default gate: the chair's estimate from 24-px inputs is doubted (confidence below 0.25),
+    """--unconfident-plane drop: the chair's estimate from 24-px inputs is doubted (confidence below 0.25),
     so the Flip+U run trains on no mirrored view, and the Mirror tab says so and why."""
     from flipviz.viz import palette
 
     cfg = AppConfig(scene="chair", res=24, steps=100_000, batch_rays=256, no_rrd=True, port=0, images_every=0,
-                    checkpoint_every=0, eval_on_stop=False, out=tmp_path / "run", view_width=64)  # fmt: skip
+                    checkpoint_every=0, eval_on_stop=False, out=tmp_path / "run", view_width=64,
+                    unconfident_plane="drop")  # fmt: skip
     a = App(cfg).start()
     try:
         deadline = time.monotonic() + 120

@@ -408,10 +408,12 @@ def test_9_a_paused_app_goes_quiet_in_the_browser(app, browser):
 
 
 def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory):
-    """Issue 26 item 4: the chair's estimate from 24-px inputs is doubted and its mirrors dropped; one
-    button draws them, scores them and colours them red-yellow-green, though training still ignores them."""
+    """Issue 26 item 4: the chair's estimate from 24-px inputs is doubted and, with --unconfident-plane drop,
+    its mirrors dropped; one button draws them, scores them and colours them red-yellow-green, though
+    training still ignores them."""
     cfg = AppConfig(scene="chair", res=24, steps=100_000, batch_rays=256, no_rrd=True, port=0, images_every=0,
-                    checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("doubted") / "run")  # fmt: skip
+                    checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("doubted") / "run",
+                    unconfident_plane="drop")  # fmt: skip
     doubted = App(cfg).start()
     try:
         wait_until(lambda: doubted.setup is not None and doubted.step > 5, 180, what="the doubted run")

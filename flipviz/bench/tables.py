@@ -15,13 +15,13 @@ from flipviz.files import write_json, write_text
 
 CSV_FIELDS = (
     "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "iou", "psnr_object", "depth_abs",
-    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "plane_error_deg", "plane_error_offset",
+    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "mirrors_dropped_at", "plane_error_deg", "plane_error_offset",
     "refined_error_deg", "refined_error_offset", "reused_from", "train_seconds",
     "wall_seconds", "steps", "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
     "flipviz_version", "torch_version", "numpy_version",
 )  # fmt: skip
 PLANE_KEYS = {  # results.csv column: the key in metrics.json's "plane" (Trainer.report)
-    "plane_confidence": "confidence", "mirrors_trained": "trained", "plane_error_deg": "error_deg",
+    "plane_confidence": "confidence", "mirrors_trained": "trained", "mirrors_dropped_at": "dropped_at", "plane_error_deg": "error_deg",
     "plane_error_offset": "error_offset", "refined_error_deg": "refined_error_deg", "refined_error_offset": "refined_error_offset",
 }  # fmt: skip
 METRICS = ("psnr", "ssim", "lpips")
@@ -204,11 +204,14 @@ def coverage_run(rows: list[dict], scene: str, config: int) -> dict | None:
 
 
 def plane_cell(r: dict | None) -> str:
-    """The auto plane's confidence of a Flip+U run, and "dropped" when its mirrors were not trained."""
+    """The auto plane's confidence of a Flip+U run, and "dropped" when its mirrors were not trained (at
+    setup, for the confidence) or "dropped at N" (by the agreement gate, at step N)."""
     conf = metric(r, "plane_confidence") if r else None
     if conf is None:
         return "-"
-    return f"{conf:.3f}" + (" (dropped)" if metric(r, "mirrors_trained") is False else "")  # 3 digits: 0.248 is below 0.25
+    at = metric(r, "mirrors_dropped_at")
+    dropped = f" (dropped at {at})" if at is not None else " (dropped)" if metric(r, "mirrors_trained") is False else ""
+    return f"{conf:.3f}{dropped}"  # 3 digits: 0.248 is below 0.25
 
 
 def plane_error_cell(r: dict | None) -> str:

@@ -42,6 +42,7 @@ class RayBank:
     def __len__(self) -> int:
         return int(self.view.shape[0])
 
-    def sample(self, n: int, generator: torch.Generator) -> torch.Tensor:
-        """n random ray indices (with replacement), drawn on the CPU for reproducibility."""
-        return torch.randint(0, len(self), (n,), generator=generator).to(self.view.device)
+    def sample(self, n: int, generator: torch.Generator, first: int | None = None) -> torch.Tensor:
+        """n random ray indices (with replacement) among the `first` rays (None: all), drawn on the CPU
+        for reproducibility."""
+        return torch.randint(0, len(self) if first is None else first, (n,), generator=generator).to(self.view.device)

@@ -120,7 +120,15 @@ class TrainConfig:
     the same inputs, e.g. Flip beside Flip+U), else estimate it and write it there as well."""
     unconfident_plane: Literal["drop", "use"] = "drop"
     """With --mirror-plane auto, when the estimate is not confident (geometry/symmetry.py: CONFIDENT): drop
-    (train on the inputs only, as B/L does: a wrong or absent symmetry costs more than no mirror) or use it."""
+    (train on the inputs only, as B/L does) or use (train with its mirrors, as with a confident one; the
+    agreement gate, --disagreement-limit, drops them mid-training if they disagree with the inputs, but
+    what they taught the field stays: docs/results/agreement)."""
+    disagreement_limit: float = 2.0
+    """Flip methods: once the NLL is on, the mirrored views are dropped (training goes on with the inputs)
+    when their squared error on the object exceeds this many times the inputs' (training/flip.py:
+    Agreement); inf: never. Tuned on the training batches of the built-ins chair, truck, mug and lamp,
+    configurations 1 and 4 (benchmarks/bench_agreement.py): the symmetric runs never went above 1.48,
+    the mug's passed 2 by step 160-240 of 600 and the lamp's configuration 4 by step 260."""
     refine_plane: bool = True
     """Flip methods: the mirror plane is a parameter of training (training/flip.py: MirrorPlane); the
     mirrored cameras follow it and the mirrored rays' photometric loss moves it."""
@@ -218,7 +226,7 @@ class TrainConfig:
             "config": (1, 8), "res": (8, 1024), "steps": (1, 10_000_000), "batch_rays": (1, 1_000_000),
             "n_samples": (2, 1024), "log_every": (1, 10_000_000), "images_every": (0, 10_000_000),
             "checkpoint_every": (0, 10_000_000), "uncertainty_start": (0.0, 1.0), "density_weight": (0.0, 1e6),
-            "plane_lr": (0.0, 1.0), "plane_start": (0.0, 1.0), "seed": (0, 2**63 - 1),
+            "plane_lr": (0.0, 1.0), "plane_start": (0.0, 1.0), "seed": (0, 2**63 - 1), "disagreement_limit": (1.0, float("inf")),
         }  # fmt: skip
         for name, (lo, hi) in bounds.items():
             if not lo <= getattr(self, name) <= hi:  # of its type already (above)

@@ -30,6 +30,8 @@ Which method uses which part is `methods.py` (B/L+U puts IV-C on the input rays;
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import torch
 from torch import Tensor, nn
@@ -43,6 +45,8 @@ from flipviz.model.pose_refine import PoseRefiner
 from flipviz.model.renderer import ray_box
 from flipviz.training.config import TrainConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, TrainView
+
+log = logging.getLogger("flipviz.training")
 
 
 # ---------------------------------------------------------------------------------- IV-A: views
@@ -137,6 +141,40 @@ def objective(cfg: TrainConfig, beta_min: float) -> Objective:
     return Objective(beta_min, cfg.density_weight, int(cfg.uncertainty_start * cfg.steps), cfg.nll_channels, cfg.density_on)
 
 
+# ---------------------------------------------------------------------------------- agreement
+class Agreement:
+    """Do the mirrored views agree with the inputs? Measured on the training batches, at no cost.
+
+    On the object's rays (the target is not the white background, or the render is opaque), a
+    running mean (EMA, AGREEMENT_EMA per step) of the squared error of the mirrored rays and of
+    the input rays, both against the same live field:
+
+        disagreement = EMA(||C - C_hat||^2 | mirrored, object) / EMA(||C - C_hat||^2 | input, object)
+
+    A symmetric object (with a good plane) lets one field fit both, so the ratio falls towards 1
+    as training goes on; where the mirrors show what the inputs contradict (a mug's handle, a
+    plane far off), the field cannot fit both and the mirrored error stays several times the inputs'.
+    """
+
+    def __init__(self, is_mirror: Tensor) -> None:
+        self.is_mirror = is_mirror  # (V,) bool
+        self.mirror = self.input = float("nan")
+
+    def update(self, out: dict[str, Tensor], target: Tensor, view: Tensor) -> None:
+        with torch.no_grad():
+            sq = (out["rgb"] - target).pow(2).sum(-1)  # (R,)
+            obj = ((1.0 - target).abs().amax(-1) > OBJECT_COLOUR) | (out["opacity"] > 0.5)  # (R,)
+            m = self.is_mirror[view]
+            for name, sel in (("mirror", obj & m), ("input", obj & ~m)):
+                if bool(sel.any()):
+                    x, old = float(sq[sel].mean()), getattr(self, name)
+                    setattr(self, name, x if old != old else (1.0 - AGREEMENT_EMA) * old + AGREEMENT_EMA * x)
+
+    @property
+    def ratio(self) -> float:
+        return self.mirror / self.input if self.input > 0 else float("nan")
+
+
 # ---------------------------------------------------------------------------------- the hooks
 class Flip:
     """Just Flip around a NeRF step: the poses of a step, its loss, and the parameters it moves
@@ -149,6 +187,8 @@ class Flip:
         self.refiner = pose_refiner(ts, cfg.steps, device)
         self.objective = objective(cfg, beta_min)
         self.mirror_ids = torch.as_tensor(ts.mirror_ids, dtype=torch.long, device=device)
+        is_mirror = torch.zeros(len(ts.views), dtype=torch.bool, device=device)
+        self.agreement = Agreement(is_mirror.index_fill(0, self.mirror_ids, True)) if ts.mirror_ids else None
         refine_plane = cfg.refine_plane and plane is not None and bool(ts.mirror_ids)
         self.plane = MirrorPlane(plane, device) if refine_plane else None
         self.plane_start = int(cfg.plane_start * cfg.steps)
@@ -158,6 +198,15 @@ class Flip:
         self.opt_plane = None
         if self.plane is not None:
             self.opt_plane = adam([{"params": list(self.plane.parameters()), "lr": cfg.plane_lr}], 1e-8, (0.9, 0.999))
+        self.disagreement_limit = cfg.disagreement_limit
+        self.gate_start = self.objective.nll_start  # the NLL lets mirrors that disagree show it (Agreement)
+        self.dropped_at: int | None = None  # the step at which the mirrors stopped being trained
+        self.kept_rays = int((ts.bank.view < min(ts.mirror_ids)).sum()) if ts.mirror_ids else len(ts.bank)
+
+    def sample(self, n: int, generator: torch.Generator) -> Tensor:
+        """(n,) the rays of a step: any training view's, or, once the mirrors are dropped, the inputs'
+        (the bank holds the inputs' rays first, then the mirrors')."""
+        return self.ts.bank.sample(n, generator, self.kept_rays if self.dropped_at is not None else None)
 
     def poses(self) -> Tensor:
         """(V, 4, 4) the current poses: inputs fixed; mirrors S_P S_P0 c2w_init Exp(xi) (IV-A, IV-B)."""
@@ -169,6 +218,8 @@ class Flip:
 
     def loss(self, out: dict[str, Tensor], target: Tensor, view: Tensor, step: int) -> Tensor:
         """IV-C on a batch whose rays come from the views `view` (R,)."""
+        if self.agreement is not None and self.dropped_at is None:  # kept as it was at the drop
+            self.agreement.update(out, target, view)
         return self.objective(out, target, self.ts.uncertain[view], step)
 
     def zero_grad(self) -> None:
@@ -177,13 +228,32 @@ class Flip:
                 opt.zero_grad(set_to_none=True)
 
     def step(self, step: int) -> None:
-        """Move the poses (BA) and, after its warm-up, the plane; `step`: the step just taken (0-based)."""
+        """Move the poses (BA) and, after its warm-up, the plane; `step`: the step just taken (0-based).
+        Once the NLL is on, mirrors that disagree with the inputs are dropped (`Agreement`)."""
+        if self.agreement is not None and self.dropped_at is None and step >= self.gate_start:
+            if self.agreement.ratio > self.disagreement_limit:
+                self.dropped_at = step + 1
+                log.warning("step %d: the mirrored views disagree with the inputs (disagreement %.2f > %.2f, "
+                            "training/flip.py: Agreement); training on without them", step + 1, self.agreement.ratio,
+                            self.disagreement_limit)  # fmt: skip
+                return
+        if self.dropped_at is not None:
+            return  # nothing mirrored is trained: the poses and the plane stay where they were
         if self.opt_pose is not None and step >= self.ba_start:
             self.refiner.adjust_lr(self.opt_pose, step)  # type: ignore[union-attr]
             self.opt_pose.step()
         if self.opt_plane is not None and step >= self.plane_start:
             decay_lr(self.opt_plane, step - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)
             self.opt_plane.step()
+
+    def scalars(self) -> dict[str, float]:
+        """The learning rates and, with mirrors, the agreement's errors (a StepEvent's scalars)."""
+        agree = {}
+        if self.agreement is not None:
+            a = self.agreement
+            agree = {"mse_mirror": a.mirror / 3.0, "mse_input": a.input / 3.0, "disagreement": a.ratio,
+                     "mirrors_trained": float(self.dropped_at is None)}  # fmt: skip
+        return {**self.lrs(), **agree}
 
     def lrs(self) -> dict[str, float]:
         return {
@@ -202,6 +272,7 @@ class Flip:
             "opt_pose": self.opt_pose.state_dict() if self.opt_pose is not None else None,
             "plane": self.plane.state_dict() if self.plane is not None else None,
             "opt_plane": self.opt_plane.state_dict() if self.opt_plane is not None else None,
+            "agreement": {"mirror": a.mirror, "input": a.input, "dropped_at": self.dropped_at} if (a := self.agreement) else None,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -210,7 +281,16 @@ class Flip:
         for key, obj in parts.items():
             if obj is not None and state.get(key) is not None:
                 obj.load_state_dict(state[key])
+        agree = state.get("agreement")
+        if self.agreement is not None and isinstance(agree, dict):
+            self.agreement.mirror, self.agreement.input = float(agree["mirror"]), float(agree["input"])
+            dropped = agree.get("dropped_at")
+            if dropped is not None and (isinstance(dropped, bool) or not isinstance(dropped, int)):
+                raise ValueError(f"dropped_at {dropped!r} is not a step")
+            self.dropped_at = dropped
 
 
+AGREEMENT_EMA = 0.05  # weight of a step's batch in the running means (about the last 20 steps)
+OBJECT_COLOUR = 0.05  # a target this far from white (any channel) is the object's
 PLANE_LR_DECAY = 0.01  # the plane's lr falls 100x over training, as BA's (1e-3 -> 1e-5)
 BA_START_WITH_PLANE = 0.5  # TrainConfig.ba_start's default when the plane is refined

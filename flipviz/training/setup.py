@@ -3,7 +3,9 @@
     split      = the protocol's inputs / unobserved tests / Upper views     (data/protocol.py),
                  or a capture's chosen inputs and held-out frames            (data/selection.py)
     estimate   = with --mirror-plane auto, the plane estimated from inputs  (plane_estimate.py);
-                 not confident: no mirrored view is trained on (--unconfident-plane)
+                 not confident: no mirrored view is trained on (--unconfident-plane);
+                 mirrors that are trained and disagree with the inputs are dropped later
+                 (flip.py: the agreement gate)
     mirrors    = flipped inputs with their initial poses                    (flip.py, step 1)
     training   = the method's views and their ray bank                      (methods.py)
     model      = radiance field + renderer                                  (model/radiance.py)
@@ -84,6 +86,9 @@ def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = 
         if not estimate.confident and cfg.unconfident_plane == "drop":
             log.warning("training without the mirrored views: the plane is not confident (--unconfident-plane use keeps them)")
             spec = spec.without_mirrors()
+        elif not estimate.confident:
+            log.warning("the plane is not confident: its mirrored views train while they agree with the inputs "
+                        "(--disagreement-limit; --unconfident-plane drop trains without them)")  # fmt: skip
     mirrors = flip.mirrored_views(cfg, split.inputs, scene, estimate.plane if estimate else None)
     training = build_training_set(
         spec, split.inputs, flip.mirrored_train_views(spec, mirrors, scene.bbox), split.uppers, device=device

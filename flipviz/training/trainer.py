@@ -190,7 +190,7 @@ class Trainer:
             if self.model.update_schedule(self.step, cfg.steps):  # grids upsampled: new parameters
                 self.opt_field = self.model.make_optimizer()
         self.model.adjust_lr(self.opt_field, self.step, cfg.steps)
-        idx = bank.sample(cfg.batch_rays, self._gen)  # (R,)
+        idx = self.flip.sample(cfg.batch_rays, self._gen)  # (R,): without the mirrors' once they are dropped
         view = bank.view[idx]
         o, d = rays_from_c2w(self.current_poses()[view], bank.dirs_cam[idx])  # (R, 3) each
         out = self.model.render_rays(o, d, training=True)
@@ -208,7 +208,7 @@ class Trainer:
             "loss": float(total.detach()),
             "psnr": psnr(float(((out["rgb"].detach() - target) ** 2).mean())),
             "lr_field": float(self.opt_field.param_groups[0]["lr"]),
-            **self.flip.lrs(),
+            **self.flip.scalars(),
         }
 
     # ------------------------------------------------------------------ the loop
@@ -396,6 +396,7 @@ class Trainer:
     def _plane_report(self) -> dict:
         """The mirror plane used, its estimate (auto), and its error against the scene's true plane."""
         rep: dict = {"used": self.mirrors.plane.to_dict(), "preset": self.cfg.mirror_plane, "trained": self.spec.mirrors}
+        # trained: False when the mirrors were dropped at setup (the estimate's confidence) or by the agreement gate
         if self.plane_estimate is not None:  # not trained: dropped for its confidence (--unconfident-plane)
             rep["confidence"] = self.plane_estimate.confidence
             rep["estimate_seconds"] = self.plane_estimate.seconds
@@ -403,6 +404,10 @@ class Trainer:
         if true is not None:
             deg, offset = plane_error(self.mirrors.plane, true)
             rep.update(error_deg=deg, error_offset=offset)
+        if self.flip.agreement is not None:  # the agreement gate (flip.py: Agreement)
+            rep["disagreement"] = self.flip.agreement.ratio
+            rep["dropped_at"] = self.flip.dropped_at
+            rep["trained"] = self.flip.dropped_at is None
         refined = self.flip.current_plane()
         if refined is not None:  # --refine-plane: "used" is where the plane started, "refined" where it is now
             rep["refined"] = refined.to_dict()

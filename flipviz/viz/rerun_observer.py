@@ -74,6 +74,9 @@ def camera_paths(cameras: list[CameraInfo]) -> list[str]:
     return paths
 
 
+AGREEMENT_SCALARS = ("disagreement", "mse_mirror", "mse_input", "mirrors_trained")  # training/flip.py: Agreement
+
+
 class RerunObserver(Observer):
     """Logs a run's setup, steps, periodic renders and end to a Rerun recording stream."""
 
@@ -292,7 +295,7 @@ class RerunObserver(Observer):
             rec = self.rec
             rec.set_time(STEP, sequence=event.step)
             for k, v in event.scalars.items():
-                group = "lr" if k.startswith("lr") else "train"
+                group = "lr" if k.startswith("lr") else "agreement" if k in AGREEMENT_SCALARS else "train"
                 self._scalar(f"curves/{group}/{entity_name(k)}", event.step, v)
             if event.mirror_c2w is not None and self._mirror_names:
                 self._log_mirrors(event)

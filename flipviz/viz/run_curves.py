@@ -4,7 +4,9 @@
 - each mirrored camera's rotation error against its exact reflection through the true plane, or,
   where no true plane is known, its change from the initial pose (what BA moved);
 - the mirror plane's angle and offset error against the true plane, or its change from where
-  training started it (only for runs that refine the plane).
+  training started it (only for runs that refine the plane);
+- the mirrors' disagreement with the inputs (training/flip.py: Agreement), against the limit above
+  which they are dropped, and the step at which they were.
 
 The trainer's thread adds (`add_step`, `add_test`); the app's UI tick reads thinned copies as uPlot
 data: one x column (the steps) and one column per series, NaN where a series has no value (uPlot
@@ -46,10 +48,15 @@ class RunCurves:
     plane_steps: list[float] = field(default_factory=list)
     plane_deg: list[float] = field(default_factory=list)
     plane_offset: list[float] = field(default_factory=list)
+    limit: float = float("inf")  # --disagreement-limit
+    agree_steps: list[float] = field(default_factory=list)
+    disagreement: list[float] = field(default_factory=list)
+    dropped_at: int | None = None  # the step at which the agreement gate dropped the mirrors
 
     @classmethod
     def for_run(cls, setup: SetupEvent) -> "RunCurves":
-        return cls(start_plane=setup.plane, true_plane=setup.true_plane)
+        limit = float(setup.settings.get("disagreement_limit", float("inf")))
+        return cls(start_plane=setup.plane, true_plane=setup.true_plane, limit=limit)
 
     @property
     def plane_vs_truth(self) -> bool:
@@ -65,6 +72,12 @@ class RunCurves:
             self.mirror_vs_truth = ev.mirror_rot_err_deg is not None
             self.mirror_steps.append(s)
             self.mirror_deg.append(np.asarray(deg, np.float64))
+        d = ev.scalars.get("disagreement")
+        if d is not None and np.isfinite(d):  # never a leading NaN: uPlot's range would break
+            self.agree_steps.append(s)
+            self.disagreement.append(float(d))
+        if ev.scalars.get("mirrors_trained") == 0.0 and self.dropped_at is None:
+            self.dropped_at = int(ev.step)
         if ev.plane is not None:
             ref = self.true_plane if self.true_plane is not None else self.start_plane
             if ref is not None:
@@ -97,6 +110,15 @@ class RunCurves:
         idx = thin(len(self.mirror_steps))
         deg = np.stack(self.mirror_deg)[idx]
         return (np.asarray(self.mirror_steps)[idx], *deg.T)
+
+    def agreement_data(self) -> tuple[np.ndarray, ...]:
+        """(steps, disagreement, the limit), ratios of squared errors."""
+        if not self.agree_steps:
+            return ()
+        idx = thin(len(self.agree_steps))
+        x = np.asarray(self.agree_steps)[idx]
+        limit = np.full(len(x), self.limit if np.isfinite(self.limit) else np.nan)
+        return x, np.asarray(self.disagreement)[idx], limit
 
     def plane_data(self) -> tuple[np.ndarray, ...]:
         """(steps, angle in degrees, offset in scene units)."""

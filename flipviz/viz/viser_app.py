@@ -521,12 +521,10 @@ class App(Observer):
             self.scene.update_mirrors(step_ev.mirror_c2w)
             self._last_mirrors = now
         if now - self._last_plot > 1.0:
-            with self._ev_lock:
-                curves = self._curves
-                data = (curves.psnr_data(), curves.mirror_data(), curves.plane_data()) if curves is not None else None
-            if data is not None:
-                self.train.set_plot(data[0])
-                self.mirror.set_curves(data[1], curves.mirror_vs_truth, data[2], curves.plane_vs_truth)
+            with self._ev_lock:  # the curves the trainer's thread adds to, read under its lock (a few ms)
+                if self._curves is not None:
+                    self.train.set_plot(self._curves.psnr_data())
+                    self.mirror.set_curves(self._curves)
             self.compare.show_status()
             self._last_plot = now
         if images is not None:

@@ -27,6 +27,7 @@ from flipviz.training.events import ImagesEvent, SetupEvent
 from flipviz.data.images import to_uint8
 from flipviz.training.evaluate import image_psnr
 from flipviz.viz import palette
+from flipviz.viz.run_curves import RunCurves
 from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import (
     error_map,
@@ -64,6 +65,7 @@ ESTIMATE_HELP = (
 POSE_TITLES = {True: "Mirrored cameras: rotation error (deg) vs their exact reflections",
                False: "Mirrored cameras: rotation BA applied (deg)"}  # fmt: skip (no true plane: what BA moved)
 PLANE_TITLES = {True: "Mirror plane: error vs the true plane", False: "Mirror plane: change from its start"}
+AGREE_TITLE = "Mirrors vs inputs: squared error ratio on the object (dropped above the limit)"
 
 
 def score_chart(est: PlaneEstimate, up: np.ndarray, size: tuple[int, int] = (400, 240)) -> np.ndarray:
@@ -107,6 +109,7 @@ class MirrorLesson:
         gui.add_markdown(LESSON)
         self.plane_text = gui.add_markdown("_No run yet._")
         self.refine_text = gui.add_markdown("")  # the plane as training refines it (--refine-plane)
+        self.gate_text = gui.add_markdown("")  # the agreement gate's verdict (training/flip.py: Agreement)
         self.show_gizmo = gui.add_checkbox("Show plane gizmo", False, hint="Drag its arrows and rings to move the plane")
         self.show_preview = gui.add_checkbox("Show plane preview", True)
         self.show_plane = gui.add_checkbox("Show mirror plane", True, hint="The translucent square of the plane")
@@ -131,7 +134,8 @@ class MirrorLesson:
         self.curves_folder = gui.add_folder("Over training", expand_by_default=True)  # plots built per run
         self.pose_plot: viser.GuiUplotHandle | None = None
         self.plane_plot: viser.GuiUplotHandle | None = None
-        self._plotted: tuple = ((), ())  # (mirror, plane) data keys of the plots shown
+        self.agree_plot: viser.GuiUplotHandle | None = None
+        self._plotted: tuple = ((), (), ())  # (mirror, plane, agreement) data keys of the plots shown
         with gui.add_folder("Estimated plane") as self.est_folder:
             self.est_text = gui.add_markdown(ESTIMATE_HELP)
             self.est_btn = gui.add_button("Estimate plane", icon=viser.Icon.SEARCH,
@@ -229,11 +233,12 @@ class MirrorLesson:
     def _build_plots(self, setup: SetupEvent) -> None:
         """This run's curves (hidden until they have points): one line per mirrored camera, and the
         plane's angle and offset when training refines it."""
-        for plot in (self.pose_plot, self.plane_plot):
+        for plot in (self.pose_plot, self.plane_plot, self.agree_plot):
             if plot is not None:
                 plot.remove()
-        self.pose_plot = self.plane_plot = None
-        self._plotted = ((), ())
+        self.pose_plot = self.plane_plot = self.agree_plot = None
+        self._plotted = ((), (), ())
+        self.gate_text.content = ""
         names = [c.source or c.camera.name for c in setup.cameras if c.kind == "mirror_init"]
         if not names or setup.plane is None:
             return
@@ -253,17 +258,37 @@ class MirrorLesson:
                     title=PLANE_TITLES[False], scales={"x": {"time": False}, "off": {"auto": True}}, aspect=1.6,
                     axes=({}, {}, {"scale": "off", "side": 1, "grid": {"show": False}}), visible=False,
                 )  # fmt: skip
+            self.agree_plot = self.server.gui.add_uplot(
+                (np.zeros(1), np.zeros(1), np.zeros(1)),
+                ({"label": "step"}, {"label": "mirrored / input", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
+                 {"label": "limit", "stroke": "#888888", "width": 1, "dash": [6, 4]}),
+                title=AGREE_TITLE, scales={"x": {"time": False}, "y": {"auto": False, "range": [0.0, 1.0]}}, aspect=1.6,
+                visible=False,
+            )  # fmt: skip
 
-    def set_curves(self, poses: tuple[np.ndarray, ...], poses_vs_truth: bool, plane: tuple[np.ndarray, ...],
-                   plane_vs_truth: bool) -> None:  # fmt: skip
-        """The run's curves (RunCurves.mirror_data, plane_data); each sent only when it has a new step."""
-        key = tuple((len(d[0]), float(d[0][-1])) if d else () for d in (poses, plane))
+    def set_curves(self, curves: RunCurves) -> None:
+        """The run's curves (RunCurves' mirror, plane and agreement data); each sent only when it has a new
+        step. The agreement's y range is set here (uPlot's own range breaks on a leading NaN, and the
+        limit must stay in view); the gate's verdict goes in the text above the charts."""
+        poses, plane, agree = curves.mirror_data(), curves.plane_data(), curves.agreement_data()
+        key = tuple((len(d[0]), float(d[0][-1])) if d else () for d in (poses, plane, agree))
         if key == self._plotted:
             return
         self._plotted = key
+        if curves.dropped_at is not None and curves.disagreement:
+            self.gate_text.content = (
+                f"**Mirrors dropped at step {curves.dropped_at}:** on the object their squared error was "
+                f"{curves.disagreement[-1]:.1f}x the inputs' (limit {curves.limit:g}), so they contradict what the "
+                "inputs saw. Training goes on with the inputs alone."
+            )  # fmt: skip
+        if self.agree_plot is not None and len(agree) == 3 and len(agree[0]) >= 2:
+            top = float(np.nanmax([*agree[1], curves.limit if np.isfinite(curves.limit) else 0.0]))
+            self.agree_plot.scales = {"x": {"time": False}, "y": {"auto": False, "range": [0.0, float(np.ceil(top * 1.1 + 0.01))]}}
         for plot, data, title in (
-            (self.pose_plot, poses, POSE_TITLES[poses_vs_truth]), (self.plane_plot, plane, PLANE_TITLES[plane_vs_truth])
-        ):  # fmt: skip
+            (self.pose_plot, poses, POSE_TITLES[curves.mirror_vs_truth]),
+            (self.plane_plot, plane, PLANE_TITLES[curves.plane_vs_truth]),
+            (self.agree_plot, agree, AGREE_TITLE),
+        ):
             if plot is None or len(data) < 2 or len(data[0]) < 2:
                 continue
             if plot.title != title:

@@ -1,0 +1,129 @@
+"""The agreement gate (training/flip.py: Agreement, --disagreement-limit): mirrors that contradict the
+inputs are measured on the training batches and dropped mid-training."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from flipviz.data.builtin import load_builtin
+from flipviz.errors import UserError
+from flipviz.training.config import TrainConfig
+from flipviz.training.events import Observer, SetupEvent, StepEvent
+from flipviz.training.flip import Agreement
+from flipviz.training.setup import build_run
+from flipviz.training.trainer import Trainer
+from flipviz.viz.run_curves import RunCurves
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def test_the_disagreement_is_the_mirrored_over_the_input_error_on_the_object_only():
+    """Rays of view 0 (an input) and view 1 (a mirror): object rays err 0.1 and 0.4 (summed over RGB);
+    background rays (white target, transparent render) err far more and must not count."""
+    a = Agreement(torch.tensor([False, True]))
+    assert math.isnan(a.ratio)  # nothing measured yet
+    view = torch.tensor([0, 0, 1, 1, 0, 1])
+    target = torch.tensor([[0.5, 0.5, 0.5]] * 4 + [[1.0, 1.0, 1.0]] * 2)
+    err = torch.tensor([0.1, 0.1, 0.4, 0.4, 3.0, 0.3]).sqrt()  # the object's squared errors, then the background's
+    rgb = target.clone()
+    rgb[:, 0] -= err
+    out = {"rgb": rgb, "opacity": torch.tensor([0.9, 0.9, 0.9, 0.9, 0.0, 0.0])}
+    a.update(out, target, view)
+    assert a.ratio == pytest.approx(4.0, rel=1e-4)
+    out["opacity"][4:] = 0.9  # the same pixels rendered opaque: the render is of the object, so they count
+    b = Agreement(torch.tensor([False, True]))
+    b.update(out, target, view)
+    assert b.input == pytest.approx((0.1 + 0.1 + 3.0) / 3, rel=1e-4) and b.mirror == pytest.approx((0.4 + 0.4 + 0.3) / 3, rel=1e-4)
+
+
+@pytest.fixture(scope="module")
+def chair16():
+    return load_builtin("chair", 16)
+
+
+def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(tmp_path, chair16):
+    cfg = TrainConfig(scene="chair", res=16, steps=100, mirror_plane="scene", uncertainty_start=0.1, out=tmp_path / "run")
+    flip = build_run(cfg, chair16).flip
+    first_mirror = min(flip.ts.mirror_ids)
+    gen = torch.Generator().manual_seed(0)
+    assert bool((flip.ts.bank.view[flip.sample(4000, gen)] >= first_mirror).any())  # mirrors are drawn at first
+    flip.agreement.mirror, flip.agreement.input = 3.0, 1.0
+    flip.step(5)  # before the NLL starts (step 10): no verdict yet
+    assert flip.dropped_at is None
+    flip.agreement.mirror = 1.9
+    flip.step(20)  # below the limit: kept
+    assert flip.dropped_at is None
+    flip.agreement.mirror = 2.1
+    flip.step(30)
+    assert flip.dropped_at == 31
+    assert not bool((flip.ts.bank.view[flip.sample(4000, gen)] >= first_mirror).any())  # only the inputs' rays now
+    plane = flip.plane.tilt.detach().clone()
+    flip.plane.tilt.grad = torch.ones_like(plane)  # even a stray gradient moves nothing mirrored any more
+    flip.step(31)
+    assert torch.equal(flip.plane.tilt.detach(), plane)
+    resumed = build_run(cfg, chair16).flip  # a checkpoint keeps the verdict
+    resumed.load_state_dict(flip.state_dict())
+    assert resumed.dropped_at == 31 and resumed.agreement.ratio == pytest.approx(2.1)
+    never = build_run(replace(cfg, disagreement_limit=math.inf), chair16).flip
+    never.agreement.mirror, never.agreement.input = 1e6, 1.0
+    never.step(50)
+    assert never.dropped_at is None
+
+
+@pytest.mark.parametrize("value", [float("nan"), 0.5])
+def test_a_disagreement_limit_below_one_or_nan_is_one_line(value):
+    with pytest.raises(UserError, match="--disagreement-limit must be in"):
+        TrainConfig(disagreement_limit=value).validate()
+
+
+class Steps(Observer):
+    def __init__(self) -> None:
+        self.events: list[StepEvent] = []
+        self.setup: SetupEvent | None = None
+
+    def on_setup(self, event: SetupEvent) -> None:
+        self.setup = event
+
+    def on_step(self, event: StepEvent) -> None:
+        self.events.append(event)
+
+
+def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
+    """Flip+U with the plane x = 0 (the chair's true plane; it maps the mug's handle to where it is not),
+    configuration 4, 32 px, at the default limit."""
+    cfg = TrainConfig(scene=scene, config=4, res=32, steps=300, batch_rays=512, mirror_plane="official", no_rrd=True,
+                      images_every=0, checkpoint_every=0, eval_on_stop=False, out=tmp_path / scene)  # fmt: skip
+    tr = Trainer(cfg)
+    steps = Steps()
+    tr.add_observer(steps)
+    return tr.run(), steps
+
+
+def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_path):
+    """The mug's mirrored views show its handle where the inputs saw none: their error on the object
+    climbs past twice the inputs' once the NLL lets them, and the gate drops them; the exactly symmetric
+    chair's stay under the limit to the end. The app's curves read the verdict from the events."""
+    mug, mug_steps = gated_run(tmp_path, "mug")
+    chair, chair_steps = gated_run(tmp_path, "chair")
+    assert chair["plane"]["dropped_at"] is None and chair["plane"]["trained"], chair["plane"]
+    assert chair["plane"]["disagreement"] < 2.0
+    at = mug["plane"]["dropped_at"]
+    assert at is not None and 60 < at < 300 and not mug["plane"]["trained"], mug["plane"]  # after the NLL starts (step 60)
+    assert mug["plane"]["disagreement"] > 2.0
+    after = [e for e in mug_steps.events if e.step > at]
+    assert after and all(e.scalars["mirrors_trained"] == 0.0 for e in after)
+    assert all(np.array_equal(e.mirror_c2w, after[0].mirror_c2w) for e in after)  # nothing mirrored moves after the drop
+    curves = RunCurves.for_run(mug_steps.setup)
+    for e in mug_steps.events:
+        curves.add_step(e)
+    x, ratio, limit = curves.agreement_data()
+    assert curves.dropped_at == next(e.step for e in mug_steps.events if e.scalars["mirrors_trained"] == 0.0)
+    assert np.all(np.isfinite(ratio)) and np.all(limit == 2.0) and ratio.max() > 2.0 and len(x) == len(ratio)
