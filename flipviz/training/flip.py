@@ -25,6 +25,10 @@ IV-C  Uncertainty (`objective`, model/objective.py): a flipped image is a true v
       symmetric object, so the mirrored rays get a learned variance beta^2 and, after a warm-up
       of plain MSE, the Gaussian NLL: mirrored pixels that contradict the real views weigh less.
 
+flipviz adds: the agreement gate (`Agreement`). Each batch compares the mirrored rays' squared
+      error on the object with the inputs'; once the NLL is on, mirrors above --disagreement-limit
+      stop being trained (and BA and the plane freeze), training goes on with the inputs.
+
 Which method uses which part is `methods.py` (B/L+U puts IV-C on the input rays; Upper uses none).
 """
 
