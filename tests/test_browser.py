@@ -29,7 +29,7 @@ def app(tmp_path_factory):
     os.environ.setdefault("FLIPVIZ_CACHE", str(tmp_path_factory.mktemp("cache")))
     cfg = AppConfig(
         scene="chair", res=48, steps=100_000, batch_rays=512, no_rrd=True, port=0, log_every=2, images_every=30,
-        mirror_plane="official",  # the estimate (auto) is tested in test_app.py
+        mirror_plane="official", disagreement_limit=float("inf"),  # the estimate (auto) is tested in test_app.py; these tests need the mirrors all run
         checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("browser") / "run", view_width=640,
     )  # fmt: skip
     a = App(cfg).start()
