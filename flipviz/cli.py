@@ -65,7 +65,7 @@ def _run_train(cfg: TrainConfig) -> int:
         if not cfg.no_rrd or cfg.rerun_serve:
             from flipviz.viz.rerun_observer import make_rerun_observer
 
-            rerun = make_rerun_observer(cfg, cfg.out)
+            rerun = make_rerun_observer(cfg, cfg.out, bake=trainer.point_cloud)
             trainer.add_observer(rerun)
         with logging_redirect_tqdm():  # a warning during training is a line of its own above the bar
             metrics = trainer.run()  # Ctrl-C inside the loop ends it with status "stopped"
@@ -92,7 +92,8 @@ def _run_train(cfg: TrainConfig) -> int:
                   f"moved {plane['refined_change_offset']:.3f}{err}")  # fmt: skip
         if plane.get("dropped_at") is not None:
             print(f"[flipviz] mirrored views dropped at step {plane['dropped_at']}: they disagreed with the inputs "
-                  f"(disagreement {plane['disagreement']:.2f} > --disagreement-limit {cfg.disagreement_limit:g})")  # fmt: skip
+                  f"(disagreement {plane['disagreement']:.2f} > --disagreement-limit {cfg.disagreement_limit:g})"
+                  + ("; the field then trained afresh on the inputs alone, as B/L" if plane.get("restarted_at") else ""))  # fmt: skip
         elif plane.get("trained") is False:
             print(f"[flipviz] trained without mirrored views: the estimated plane's confidence is "
                   f"{metrics['plane']['confidence']:.2f} (--unconfident-plane use keeps them)")  # fmt: skip

@@ -78,6 +78,32 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
     assert never.dropped_at is None
 
 
+def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_path, chair16):
+    """--after-drop restart: at the drop a fresh field, seeded as B/L's, trains the inputs for the full
+    steps, so the final field equals B/L's bit for bit; a checkpoint of it resumes (no beta head)."""
+    base = dict(scene="chair", res=16, steps=60, batch_rays=256, no_rrd=True, images_every=0, checkpoint_every=0,
+                eval_on_stop=False)  # fmt: skip
+    flip = Trainer(TrainConfig(method="flip+u", mirror_plane="scene", disagreement_limit=1.0, out=tmp_path / "flip",
+                               **base), chair16)  # fmt: skip
+    steps = Steps()
+    flip.add_observer(steps)
+    m = flip.run()
+    at = m["plane"]["dropped_at"]
+    assert at is not None and m["plane"]["restarted_at"] == at and m["steps"] == at + 60, m["plane"]
+    assert steps.events[-1].step == steps.events[-1].total_steps == at + 60
+    bl = Trainer(TrainConfig(method="bl", out=tmp_path / "bl", **base), chair16)
+    bl.run()
+    ours, theirs = flip.model.state_dict(), bl.model.state_dict()
+    assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours)
+    cfg = replace(flip.cfg, resume=str(tmp_path / "flip"))
+    resumed = Trainer(cfg, chair16)
+    assert resumed.field_start == at and resumed.total_steps == at + 60 and not resumed.model.with_beta
+    assert all(torch.equal(resumed.model.state_dict()[k], ours[k]) for k in ours)
+    resumed.close()
+    kept = Trainer(replace(flip.cfg, after_drop="continue", out=tmp_path / "continue"), chair16).run()
+    assert kept["plane"]["dropped_at"] == at and kept["steps"] == 60 and kept["plane"]["restarted_at"] is None
+
+
 @pytest.mark.parametrize("value", [float("nan"), 0.5])
 def test_a_disagreement_limit_below_one_or_nan_is_one_line(value):
     with pytest.raises(UserError, match="--disagreement-limit must be in"):
@@ -117,6 +143,7 @@ def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_pat
     assert chair["plane"]["disagreement"] < 2.0
     at = mug["plane"]["dropped_at"]
     assert at is not None and 60 < at < 300 and not mug["plane"]["trained"], mug["plane"]  # after the NLL starts (step 60)
+    assert mug["plane"]["restarted_at"] == at and mug["steps"] == at + 300  # a fresh field on the inputs (--after-drop)
     assert mug["plane"]["disagreement"] > 2.0
     after = [e for e in mug_steps.events if e.step > at]
     assert after and all(e.scalars["mirrors_trained"] == 0.0 for e in after)
@@ -126,4 +153,5 @@ def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_pat
         curves.add_step(e)
     x, ratio, limit = curves.agreement_data()
     assert curves.dropped_at == next(e.step for e in mug_steps.events if e.scalars["mirrors_trained"] == 0.0)
+    assert curves.restarted  # the events' total grew by the steps before the drop
     assert np.all(np.isfinite(ratio)) and np.all(limit == 2.0) and ratio.max() > 2.0 and len(x) == len(ratio)

@@ -289,6 +289,7 @@ def test_two_tabs_and_snap_to_view(app):
             ids.update(app.views.clients)
             assert len(ids - before) == 2  # one per-client state per tab
             await a.wait_gui("View")
+            assert {"/mirror_plane", "/run/true_plane/quad", "/run/sphere/mesh"} <= a.visible_nodes()  # before the snap
             key = next(k for k in app.snap.views if k.startswith("test"))
             await a.set_value("View", key)
             await asyncio.sleep(0.2)
@@ -302,12 +303,21 @@ def test_two_tabs_and_snap_to_view(app):
             await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid, start=n)
             await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid
                              and m["updates"].get("visible") is True, start=n)  # fmt: skip
+            # nothing in the way of the snapped view: no plane square, no sphere, no frustum at the camera
+            await a.wait_for(lambda m: m["type"] == "SetSceneNodeVisibilityMessage" and m["name"] == "/mirror_plane"
+                             and not m["visible"], start=n)  # fmt: skip
+            drawn = a.visible_nodes()
+            assert not drawn & {"/mirror_plane", "/run/true_plane/quad", "/run/sphere/mesh"}, sorted(drawn)
+
             # leaving the view: the Views panel drops its images (it kept the old snapped view's)
             n = len(a.messages)
             await a.send_camera((4.0, 4.0, 3.0))
             await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid
                              and m["updates"].get("visible") is False, start=n)  # fmt: skip
             await a.wait_for(lambda m: "You left" in str(m), start=n)
+            await a.wait_for(lambda m: m["type"] == "SetSceneNodeVisibilityMessage" and m["name"] == "/mirror_plane"
+                             and m["visible"], start=n)  # fmt: skip
+            assert {"/mirror_plane", "/run/true_plane/quad", "/run/sphere/mesh"} <= a.visible_nodes()
         await asyncio.sleep(0.5)
 
     before, ids = set(app.views.clients), set()
@@ -976,3 +986,66 @@ def test_thinned_curves_keep_every_test_evaluation_and_the_last_step():
     assert len(x) <= MAX_POINTS + len(evals) and x[-1] == 5000 and np.all(np.diff(x) > 0)
     assert {s: t for s, t in zip(x, test) if np.isfinite(t)} == pytest.approx({s: 15 + s / 1000 for s in evals})
     assert np.isnan(train[x == 125]).all() and np.isfinite(train[x == 250]).all()
+
+
+def test_beta2_views_colour_the_object_and_leave_empty_space_as_rendered():
+    """Issue 21: a beta^2 view composites the colour scale over the render by opacity, so a white
+    background stays white instead of a wash of the scale's floor colour."""
+    from flipviz.viz import palette
+    from flipviz.viz.viser_common import ScalarView, visualize_output
+
+    rgb = np.ones((2, 2, 3), np.float32)
+    rgb[0, 0] = (0.2, 0.3, 0.4)  # the object's pixel
+    out = {"rgb": rgb, "opacity": np.array([[1.0, 0.0], [0.0, 0.5]], np.float32),
+           "beta2": np.array([[0.08, 0.01], [0.01, 0.05]], np.float32)}  # fmt: skip
+    img = visualize_output(out, "beta^2", ScalarView())
+    scale = palette.colormap(out["beta2"], *palette.BETA2_RANGE)
+    assert np.array_equal(img[0, 0], scale[0, 0])  # opaque: the uncertainty's colour
+    assert np.array_equal(img[0, 1], [255, 255, 255]) and np.array_equal(img[1, 0], [255, 255, 255])  # empty: white
+    assert np.allclose(img[1, 1], 0.5 * 255 + 0.5 * scale[1, 1].astype(float), atol=1)  # half opaque: half each
+
+
+def test_the_live_preview_is_drawn_as_gaussian_splats_one_per_cell(app):
+    """Issue 21: the 3D preview reaches the browser as splats (one Gaussian per baked cell, with the cell's
+    opacity) and, on request, as square points."""
+    from flipviz.viz.splats import SIGMA_PER_CELL, VISER_BYTES
+
+    def splats(m: dict, least: int = 100) -> np.ndarray | None:
+        ok = m["type"] == "GaussianSplatsMessage" and m["name"] == "/preview3d"
+        buf = np.frombuffer(m["props"]["buffer"], np.uint8).reshape(-1, VISER_BYTES) if ok else None
+        return buf if buf is not None and len(buf) > least else None
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            app.preview.request()
+            await c.wait_for(lambda m: splats(m) is not None, timeout=120)  # a field with opaque cells
+            app.trainer.pause()  # the field holds still
+            await asyncio.to_thread(app.trainer.render, app.setup.cameras[0].camera, ("rgb",))  # the step in flight ends
+            app.preview.request()  # a bake of the paused field, then none (the step does not change)
+            t = time.monotonic()
+            while (app.preview.baked or {}).get("step") != app.preview.step():
+                assert time.monotonic() - t < 60, "no bake of the paused field"
+                await asyncio.sleep(0.1)
+            await c.wait_gui("Preview drawn as")
+            n = len(c.messages)
+            await c.set_value("Preview drawn as", "points")  # the same bake, drawn as squares
+            await c.wait_for(lambda m: m["type"] == "PointCloudMessage" and m["name"] == "/preview3d", start=n)
+            n = len(c.messages)
+            await c.set_value("Preview drawn as", "splats")  # and as splats again
+            m = await c.wait_for(lambda m: splats(m) is not None, start=n)
+            baked = app.preview.baked
+            solid, buf = baked["solid"], splats(m)
+            assert len(buf) == int(solid.sum())  # RGB: every solid cell, nothing else
+            centers = buf[:, :12].copy().view(np.float32)
+            assert np.allclose(np.sort(centers[:, 0]), np.sort(baked["points"][solid][:, 0]))
+            cov = buf[:, 16:28].copy().view(np.float16).astype(np.float32)  # the upper triangle, row by row
+            assert np.allclose(cov[:, [0, 3, 5]], (SIGMA_PER_CELL * float(baked["cell"])) ** 2, rtol=1e-2)
+            assert np.allclose(cov[:, [1, 2, 4]], 0.0)
+            opacity = np.sort(buf[:, 31].astype(np.float32) / 255.0)
+            assert np.allclose(opacity, np.sort(baked["alpha"][solid]), atol=1 / 255 + 1e-6)  # the cells' own opacity
+
+    try:
+        asyncio.run(asyncio.wait_for(go(), timeout=240))  # a first field with opaque cells may take a while
+    finally:
+        app.trainer.resume()

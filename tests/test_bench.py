@@ -175,7 +175,7 @@ def test_a_flip_run_that_drops_its_mirrors_takes_its_b_l_twins_result(tmp_path: 
     a Flip run that does train), the run's own plane report, and the test renders."""
     monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
     kw = dict(scenes="chair", configs="1", res=24, steps=20, batch_rays=256, grid_res=(16,), n_samples=32,
-              workers=1, cpus_per_run=1, quiet=True)  # fmt: skip
+              workers=1, cpus_per_run=1, quiet=True, unconfident_plane="drop")  # fmt: skip
     res = _results(run_bench(BenchConfig(methods="bl,flip,flip+u", out=tmp_path / "b", **kw)))
     by = {v["method"]: v for v in res.values()}
     assert all(v["status"] == "ok" for v in res.values()), res

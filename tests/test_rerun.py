@@ -77,7 +77,7 @@ def run(tmp_path_factory):
     cfg = TrainConfig(scene="chair", res=32, steps=STEPS, log_every=LOG_EVERY, images_every=IMAGES_EVERY,
                       batch_rays=256, out=out, checkpoint_every=0, rerun_serve=True, mirror_plane="official")
     trainer = Trainer(cfg)
-    obs = make_rerun_observer(cfg, trainer.run_dir)
+    obs = make_rerun_observer(cfg, trainer.run_dir, bake=trainer.point_cloud, splats_every=1)
     keep = Keep()
     trainer.add_observer(obs)
     trainer.add_observer(keep)
@@ -264,3 +264,34 @@ def test_a_recording_that_cannot_be_compacted_is_kept_as_it_is(tmp_path, caplog)
     assert optimize_recording(path) is False
     assert path.read_bytes() == b"not an rrd file" * 100 and not list(tmp_path.glob("*.optimizing"))
     assert "kept as written" in caplog.text
+
+
+def test_the_field_is_recorded_as_gaussian_splats(run, tmp_path):
+    """Issue 21: the recording holds the 3D model: the field's solid cells as Gaussian splats at every
+    n-th periodic render and at the end, one scale for all, each with its cell's colour and opacity."""
+    from flipviz.viz.splats import SIGMA_PER_CELL
+
+    centers = rows_by_step(run["rrd"]["/world/field"], "GaussianSplats3D:centers")
+    assert sorted(centers) == [IMAGES_EVERY, STEPS]  # splats_every=1: each ImagesEvent; the end is logged once
+    cfg = TrainConfig(scene="chair", res=32, steps=200, images_every=100, batch_rays=512, out=tmp_path / "run",
+                      checkpoint_every=0, mirror_plane="official")  # fmt: skip
+    trainer = Trainer(cfg)  # long enough for solid cells
+    obs = make_rerun_observer(cfg, trainer.run_dir, bake=trainer.point_cloud, splats_every=2)
+    trainer.add_observer(obs)
+    try:
+        trainer.run()
+    finally:
+        obs.close()
+    batches = read_rrd(trainer.run_dir / "recording.rrd")["/world/field"]
+    centers = rows_by_step(batches, "GaussianSplats3D:centers")
+    assert sorted(centers) == [200]  # the 2nd ImagesEvent (step 100 was the 1st), the end: the same step, once
+    baked = trainer.point_cloud()
+    solid = baked["solid"]
+    got = np.asarray(centers[200], np.float32)
+    assert len(got) == int(solid.sum()) > 100
+    assert np.allclose(np.sort(got[:, 2]), np.sort(baked["points"][solid][:, 2]))
+    (scale,) = rows_by_step(batches, "GaussianSplats3D:scales")[200]
+    assert scale == pytest.approx([SIGMA_PER_CELL * float(baked["cell"])] * 3)
+    colours = np.asarray(rows_by_step(batches, "GaussianSplats3D:colors")[200], np.uint32)
+    alpha = (colours & 0xFF).astype(np.float32) / 255.0  # Rerun's RGBA as 0xRRGGBBAA
+    assert np.allclose(np.sort(alpha), np.sort(baked["alpha"][solid]), atol=1 / 255 + 1e-6)

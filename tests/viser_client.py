@@ -26,11 +26,23 @@ _zstd = zstandard.ZstdDecompressor()
 
 
 def decode_frame(raw: bytes) -> list[dict]:
-    """Server frame -> list of message dicts (binary buffers are left as placeholders)."""
+    """Server frame -> list of message dicts, their binary buffers (viser's {"__binary_index", "dtype"}
+    placeholders) resolved to bytes: the zstd msgpack, then each buffer 8-byte aligned (viser/infra)."""
     inner_size = int.from_bytes(raw[0:8], "little")
     comp_size = int.from_bytes(raw[8:16], "little")
-    inner = _zstd.decompress(raw[16 : 16 + comp_size], max_output_size=inner_size)
-    return list(msgspec.msgpack.decode(inner)["messages"])
+    inner = msgspec.msgpack.decode(_zstd.decompress(raw[16 : 16 + comp_size], max_output_size=inner_size))
+    buffers, at = [], 16 + comp_size
+    for n in inner.get("binaryBufferLengths") or ():
+        at += (8 - at % 8) % 8
+        buffers.append(bytes(raw[at : at + n]))
+        at += n
+
+    def resolve(v):
+        if isinstance(v, dict):
+            return buffers[v["__binary_index"]] if "__binary_index" in v and "dtype" in v else {k: resolve(x) for k, x in v.items()}
+        return [resolve(x) for x in v] if isinstance(v, list) else v
+
+    return [resolve(m) for m in inner["messages"]]
 
 
 def wxyz_look_at(position: np.ndarray, target: np.ndarray) -> tuple[float, ...]:
@@ -75,6 +87,28 @@ class ViserTestClient:
                 self._new.set()
         except websockets.ConnectionClosed:
             pass
+
+    def visible_nodes(self) -> set[str]:
+        """The scene nodes this browser draws now: added, not removed, and neither they nor a parent
+        hidden (SetSceneNodeVisibilityMessage), as viser's client reads the messages in order."""
+        shown: dict[str, bool] = {}
+        for m in self.messages:
+            name, kind = m.get("name"), m.get("type", "")
+            if not isinstance(name, str) or kind.startswith("Gui"):
+                continue
+            if kind == "SetSceneNodeVisibilityMessage":
+                if name in shown:
+                    shown[name] = bool(m["visible"])
+            elif kind == "RemoveSceneNodeMessage":
+                shown = {n: v for n, v in shown.items() if n != name and not n.startswith(name + "/")}
+            elif isinstance(m.get("props"), dict):  # a node added (or added again): drawn until hidden
+                shown[name] = True
+
+        def drawn(name: str) -> bool:
+            parts = name.strip("/").split("/")
+            return all(shown.get("/" + "/".join(parts[: i + 1]), True) for i in range(len(parts)))
+
+        return {n for n, v in shown.items() if v and drawn(n)}
 
     async def send(self, type_name: str, **fields) -> None:
         await self.ws.send(msgspec.msgpack.encode({"type": type_name, **fields}))

@@ -53,6 +53,11 @@ class BenchConfig:
     """Initial mirrored poses: reflect (each camera reflected through the plane) | lookat (the paper's)."""
     refine_plane: bool = TrainConfig.refine_plane
     """Flip runs refine the mirror plane during training (TrainConfig.refine_plane)."""
+    unconfident_plane: Literal["drop", "use"] = TrainConfig.unconfident_plane
+    """Flip runs with an unconfident auto plane: use its mirrors (the agreement gate may drop them) or drop
+    them at setup (the run then takes its B/L twin's result)."""
+    after_drop: Literal["restart", "continue"] = TrainConfig.after_drop
+    """When the agreement gate drops a run's mirrors: restart the field on the inputs, or continue it."""
     preset: Literal["fast", "authors", "paper"] = TrainConfig.preset
     """Every run's preset: fast (flipviz's setting) | authors (the official code's loss and rendering
     choices on the grid; with --mirror-plane official, its x = 0) | paper (those on the paper's NeRF)."""

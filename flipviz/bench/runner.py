@@ -34,7 +34,7 @@ from flipviz.training.config import TrainConfig
 # BenchConfig fields that are TrainConfig settings, passed to every run as they are.
 RUN_SETTINGS = (
     "res", "steps", "batch_rays", "field", "n_samples", "grid_res", "mirror_plane", "mirror_pose", "refine_plane", "seed", "device",
-    "preset",
+    "preset", "unconfident_plane", "after_drop",
 )  # fmt: skip
 # TrainConfig fields that change where a run writes or what it logs, not what it computes.
 NOT_IN_KEY = (

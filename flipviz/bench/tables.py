@@ -15,13 +15,14 @@ from flipviz.files import write_json, write_text
 
 CSV_FIELDS = (
     "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "iou", "psnr_object", "depth_abs",
-    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "mirrors_dropped_at", "plane_error_deg", "plane_error_offset",
+    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "mirrors_dropped_at", "field_restarted_at", "plane_error_deg", "plane_error_offset",
     "refined_error_deg", "refined_error_offset", "reused_from", "train_seconds",
     "wall_seconds", "steps", "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
     "flipviz_version", "torch_version", "numpy_version",
 )  # fmt: skip
 PLANE_KEYS = {  # results.csv column: the key in metrics.json's "plane" (Trainer.report)
-    "plane_confidence": "confidence", "mirrors_trained": "trained", "mirrors_dropped_at": "dropped_at", "plane_error_deg": "error_deg",
+    "plane_confidence": "confidence", "mirrors_trained": "trained", "mirrors_dropped_at": "dropped_at", "field_restarted_at": "restarted_at",
+    "plane_error_deg": "error_deg",
     "plane_error_offset": "error_offset", "refined_error_deg": "refined_error_deg", "refined_error_offset": "refined_error_offset",
 }  # fmt: skip
 METRICS = ("psnr", "ssim", "lpips")
@@ -205,12 +206,13 @@ def coverage_run(rows: list[dict], scene: str, config: int) -> dict | None:
 
 def plane_cell(r: dict | None) -> str:
     """The auto plane's confidence of a Flip+U run, and "dropped" when its mirrors were not trained (at
-    setup, for the confidence) or "dropped at N" (by the agreement gate, at step N)."""
+    setup, for the confidence) or "dropped at N" (by the agreement gate, at step N; ", restarted": the field
+    then trained the inputs afresh, --after-drop restart)."""
     conf = metric(r, "plane_confidence") if r else None
     if conf is None:
         return "-"
-    at = metric(r, "mirrors_dropped_at")
-    dropped = f" (dropped at {at})" if at is not None else " (dropped)" if metric(r, "mirrors_trained") is False else ""
+    at, again = metric(r, "mirrors_dropped_at"), ", restarted" if metric(r, "field_restarted_at") is not None else ""
+    dropped = f" (dropped at {at}{again})" if at is not None else " (dropped)" if metric(r, "mirrors_trained") is False else ""
     return f"{conf:.3f}{dropped}"  # 3 digits: 0.248 is below 0.25
 
 

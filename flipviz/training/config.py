@@ -118,17 +118,22 @@ class TrainConfig:
     plane_file: Path | None = None
     """With --mirror-plane auto: read the estimate from this plane.json when it exists (another run's on
     the same inputs, e.g. Flip beside Flip+U), else estimate it and write it there as well."""
-    unconfident_plane: Literal["drop", "use"] = "drop"
-    """With --mirror-plane auto, when the estimate is not confident (geometry/symmetry.py: CONFIDENT): drop
-    (train on the inputs only, as B/L does) or use (train with its mirrors, as with a confident one; the
-    agreement gate, --disagreement-limit, drops them mid-training if they disagree with the inputs, but
-    what they taught the field stays: docs/results/agreement)."""
+    unconfident_plane: Literal["drop", "use"] = "use"
+    """With --mirror-plane auto, when the estimate is not confident (geometry/symmetry.py: CONFIDENT): use
+    (train with its mirrors, as with a confident one: the agreement gate, --disagreement-limit, drops them
+    mid-training if they disagree with the inputs, and --after-drop restart then trains the inputs afresh)
+    or drop (train on the inputs only from the start, as B/L does). docs/results/agreement."""
     disagreement_limit: float = 2.0
     """Flip methods: once the NLL is on, the mirrored views are dropped (training goes on with the inputs)
     when their squared error on the object exceeds this many times the inputs' (training/flip.py:
     Agreement); inf: never. Tuned on the training batches of the built-ins chair, truck, mug and lamp,
     configurations 1 and 4 (benchmarks/bench_agreement.py): the symmetric runs never went above 1.48,
     the mug's passed 2 by step 160-240 of 600 and the lamp's configuration 4 by step 260."""
+    after_drop: Literal["restart", "continue"] = "restart"
+    """When the agreement gate drops the mirrors: restart (a fresh field trains on the inputs alone for
+    the full --steps, so the run ends as B/L would, at the cost of the steps already taken; what the
+    mirrors taught is gone) or continue (the same field trains on with the inputs; what the mirrors
+    taught stays: docs/results/agreement)."""
     refine_plane: bool = True
     """Flip methods: the mirror plane is a parameter of training (training/flip.py: MirrorPlane); the
     mirrored cameras follow it and the mirrored rays' photometric loss moves it."""

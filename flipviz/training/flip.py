@@ -27,7 +27,8 @@ IV-C  Uncertainty (`objective`, model/objective.py): a flipped image is a true v
 
 flipviz adds: the agreement gate (`Agreement`). Each batch compares the mirrored rays' squared
       error on the object with the inputs'; once the NLL is on, mirrors above --disagreement-limit
-      stop being trained (and BA and the plane freeze), training goes on with the inputs.
+      stop being trained (and BA and the plane freeze), and the trainer restarts the field on the
+      inputs alone (--after-drop restart: the run ends as B/L) or trains it on (continue).
 
 Which method uses which part is `methods.py` (B/L+U puts IV-C on the input rays; Upper uses none).
 """
@@ -221,7 +222,8 @@ class Flip:
         return c2w.index_copy(0, self.mirror_ids, moved)
 
     def loss(self, out: dict[str, Tensor], target: Tensor, view: Tensor, step: int) -> Tensor:
-        """IV-C on a batch whose rays come from the views `view` (R,)."""
+        """IV-C on a batch whose rays come from the views `view` (R,); `step`: the field's own step
+        (the run's, unless the field was restarted after a drop)."""
         if self.agreement is not None and self.dropped_at is None:  # kept as it was at the drop
             self.agreement.update(out, target, view)
         return self.objective(out, target, self.ts.uncertain[view], step)
@@ -231,24 +233,26 @@ class Flip:
             if opt is not None:
                 opt.zero_grad(set_to_none=True)
 
-    def step(self, step: int) -> None:
+    def step(self, step: int) -> bool:
         """Move the poses (BA) and, after its warm-up, the plane; `step`: the step just taken (0-based).
-        Once the NLL is on, mirrors that disagree with the inputs are dropped (`Agreement`)."""
+        Once the NLL is on, mirrors that disagree with the inputs are dropped (`Agreement`): True on
+        the step they are (the trainer then restarts the field, or trains it on: --after-drop)."""
         if self.agreement is not None and self.dropped_at is None and step >= self.gate_start:
             if self.agreement.ratio > self.disagreement_limit:
                 self.dropped_at = step + 1
                 log.warning("step %d: the mirrored views disagree with the inputs (disagreement %.2f > %.2f, "
-                            "training/flip.py: Agreement); training on without them", step + 1, self.agreement.ratio,
+                            "training/flip.py: Agreement); training without them", step + 1, self.agreement.ratio,
                             self.disagreement_limit)  # fmt: skip
-                return
+                return True
         if self.dropped_at is not None:
-            return  # nothing mirrored is trained: the poses and the plane stay where they were
+            return False  # nothing mirrored is trained: the poses and the plane stay where they were
         if self.opt_pose is not None and step >= self.ba_start:
             self.refiner.adjust_lr(self.opt_pose, step)  # type: ignore[union-attr]
             self.opt_pose.step()
         if self.opt_plane is not None and step >= self.plane_start:
             decay_lr(self.opt_plane, step - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)
             self.opt_plane.step()
+        return False
 
     def scalars(self) -> dict[str, float]:
         """The learning rates and, with mirrors, the agreement's errors (a StepEvent's scalars)."""

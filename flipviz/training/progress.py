@@ -32,6 +32,8 @@ class ProgressObserver(Observer):
     def on_step(self, event: StepEvent) -> None:
         if self.bar is None:
             return
+        if event.total_steps != self.bar.total:  # the field restarted after the mirrors were dropped
+            self.bar.total = event.total_steps
         self.bar.update(max(0, event.step - self.bar.n))  # tqdm's own rate gives the ETA
         s = event.scalars
         self.postfix.update(loss=f"{s.get('loss', float('nan')):.4f}", psnr=f"{s.get('psnr', float('nan')):.2f}")

@@ -65,6 +65,11 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
                        beta_from=cfg.beta_from, **entropy)  # fmt: skip
 
 
+def fresh_model(cfg: TrainConfig, scene: SceneData, with_beta: bool) -> RadianceModel:
+    """A newly initialised model of the run (the agreement gate's restart builds one mid-run)."""
+    return RadianceModel(model_config(cfg), scene.bbox, scene.near, scene.far, with_beta=with_beta, device=torch.device(cfg.device))
+
+
 def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
     """The protocol's configuration for orbit data without --inputs; else the chosen inputs."""
     if scene.protocol and not cfg.inputs:
@@ -93,7 +98,6 @@ def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = 
     training = build_training_set(
         spec, split.inputs, flip.mirrored_train_views(spec, mirrors, scene.bbox), split.uppers, device=device
     )
-    mcfg = model_config(cfg)
-    model = RadianceModel(mcfg, scene.bbox, scene.near, scene.far, with_beta=spec.uses_beta, device=device)
-    hooks = flip.Flip(cfg, training, mirrors.plane if spec.mirrors else None, mcfg.beta_min, device)
+    model = fresh_model(cfg, scene, spec.uses_beta)
+    hooks = flip.Flip(cfg, training, mirrors.plane if spec.mirrors else None, model.cfg.beta_min, device)
     return RunSetup(scene, spec, split, mirrors, estimate, training, model, hooks)

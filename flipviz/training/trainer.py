@@ -50,7 +50,7 @@ from flipviz.training.events import (
     StepEvent,
 )
 from flipviz.training.plane_estimate import estimate_plane
-from flipviz.training.setup import build_run
+from flipviz.training.setup import build_run, fresh_model
 
 log = logging.getLogger("flipviz.training")
 
@@ -109,6 +109,7 @@ class Trainer:
         if self.plane_estimate is not None and not self.read_only:
             artifacts.write_plane(self.run_dir, self.plane_estimate)
         self.step = 0
+        self.field_start = 0  # the step the field began at: 0, or the agreement gate's drop (--after-drop restart)
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
         self._observers: list[Observer] = []
         self._lock = threading.RLock()  # one lock for a training step and for render()
@@ -140,6 +141,11 @@ class Trainer:
 
     def resume(self) -> None:
         self._running.set()
+
+    @property
+    def total_steps(self) -> int:
+        """The steps the run takes: cfg.steps, plus the steps before a restart of the field."""
+        return self.field_start + self.cfg.steps
 
     def stop(self) -> None:
         self._stop.set()
@@ -186,30 +192,50 @@ class Trainer:
     # ------------------------------------------------------------------ one step
     def _train_step(self) -> dict:
         cfg, bank = self.cfg, self.training.bank
+        field_step = self.step - self.field_start  # the field's schedules count from its start
         with signals_deferred():  # an interrupt never leaves half-upsampled grids or a stale optimiser
-            if self.model.update_schedule(self.step, cfg.steps):  # grids upsampled: new parameters
+            if self.model.update_schedule(field_step, cfg.steps):  # grids upsampled: new parameters
                 self.opt_field = self.model.make_optimizer()
-        self.model.adjust_lr(self.opt_field, self.step, cfg.steps)
+        self.model.adjust_lr(self.opt_field, field_step, cfg.steps)
         idx = self.flip.sample(cfg.batch_rays, self._gen)  # (R,): without the mirrors' once they are dropped
         view = bank.view[idx]
         o, d = rays_from_c2w(self.current_poses()[view], bank.dirs_cam[idx])  # (R, 3) each
         out = self.model.render_rays(o, d, training=True)
         target = bank.rgb[idx]
-        total = self.flip.loss(out, target, view, self.step) + self.model.regulariser()
+        total = self.flip.loss(out, target, view, field_step) + self.model.regulariser()
         if not torch.isfinite(total):
             raise NonFiniteLoss(f"loss became {float(total.detach())} at step {self.step + 1}")
         self.opt_field.zero_grad(set_to_none=True)
         self.flip.zero_grad()
         total.backward()
         self.opt_field.step()
-        self.flip.step(self.step)
+        dropped = self.flip.step(self.step)
         self.step += 1
+        if dropped and cfg.after_drop == "restart":
+            self._restart_field()
         return {
             "loss": float(total.detach()),
             "psnr": psnr(float(((out["rgb"].detach() - target) ** 2).mean())),
             "lr_field": float(self.opt_field.param_groups[0]["lr"]),
             **self.flip.scalars(),
         }
+
+    def _restart_field(self) -> None:
+        """After the agreement gate dropped the mirrors: a fresh field, seeded as B/L's, trains on the
+        inputs alone for the full cfg.steps from here (the run then ends as B/L would)."""
+        log.warning("step %d: restarting the field on the inputs alone for %d steps (--after-drop restart)",
+                    self.step, self.cfg.steps)  # fmt: skip
+        with signals_deferred():
+            self._new_field(self.step)
+            self._gen = torch.Generator().manual_seed(self.cfg.seed)
+
+    def _new_field(self, start: int) -> None:
+        """A newly initialised field without a variance head (no mirrored ray is trained any more),
+        starting at step `start`, seeded as a run's first field is."""
+        torch.manual_seed(self.cfg.seed)
+        self.model = fresh_model(self.cfg, self.scene, with_beta=False)
+        self.opt_field = self.model.make_optimizer()
+        self.field_start = start
 
     # ------------------------------------------------------------------ the loop
     def run(self) -> dict:
@@ -220,7 +246,7 @@ class Trainer:
         self._emit("on_setup", self.setup_event)
         status, message = "finished", ""
         try:
-            while self.step < cfg.steps:
+            while self.step < self.total_steps:
                 if not self._running.is_set():
                     self._running.wait()  # paused: block between steps, without the render lock
                 if self._stop.is_set():
@@ -230,10 +256,10 @@ class Trainer:
                 with self._lock:
                     scalars = self._train_step()
                 self.train_seconds += time.perf_counter() - t0
-                if self.step % cfg.log_every == 0 or self.step == cfg.steps:
-                    self._emit("on_step", StepEvent(self.step, cfg.steps, self.train_seconds, scalars, **self._pose_report(),
-                                                 **self._plane_now()))
-                if cfg.images_every > 0 and self.step % cfg.images_every == 0 and self.step < cfg.steps:
+                if self.step % cfg.log_every == 0 or self.step == self.total_steps:
+                    self._emit("on_step", StepEvent(self.step, self.total_steps, self.train_seconds, scalars,
+                                                 **self._pose_report(), **self._plane_now()))  # fmt: skip
+                if cfg.images_every > 0 and self.step % cfg.images_every == 0 and self.step < self.total_steps:
                     self._emit("on_images", self._images_event())
                 if cfg.checkpoint_every > 0 and self.step % cfg.checkpoint_every == 0:
                     self.save_checkpoint()
@@ -316,6 +342,7 @@ class Trainer:
     def checkpoint_state(self) -> dict:
         return {
             "step": self.step,
+            "field_start": self.field_start,
             "config": self.cfg.to_dict(),
             "model": self.model.state_dict(),
             "opt_field": self.opt_field.state_dict(),
@@ -354,6 +381,11 @@ class Trainer:
             if key in theirs and theirs[key] != getattr(self.cfg, key) and not (key == "scene" and self.cfg.data):
                 raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {getattr(self.cfg, key)!r}")
         try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
+            start = state.get("field_start", 0)
+            if isinstance(start, bool) or not isinstance(start, int) or start < 0:
+                raise ValueError(f"field_start {start!r} is not a whole number >= 0")
+            if start > 0:  # the field was restarted after the mirrors were dropped: no variance head
+                self._new_field(start)
             self.model.load_state_dict(state["model"])
             self.opt_field = self.model.make_optimizer()
             self.opt_field.load_state_dict(state["opt_field"])
@@ -408,6 +440,7 @@ class Trainer:
             rep["disagreement"] = self.flip.agreement.ratio
             rep["dropped_at"] = self.flip.dropped_at
             rep["trained"] = self.flip.dropped_at is None
+            rep["restarted_at"] = self.field_start or None  # the field restarted on the inputs (--after-drop)
         refined = self.flip.current_plane()
         if refined is not None:  # --refine-plane: "used" is where the plane started, "refined" where it is now
             rep["refined"] = refined.to_dict()

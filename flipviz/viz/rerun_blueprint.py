@@ -6,6 +6,7 @@ Entity layout written by `flipviz.viz.rerun_observer` (all names sanitised by `e
     world/cameras/<kind>/<name>        static cameras: input, test, mirror_init, mirror_true, upper
     world/cameras/mirror/<name>        refined mirrored cameras (pose per step)
     world/trajectories                 one segment per mirrored camera per logged step
+    world/field                        the field as Gaussian splats, at a few steps (splats.py)
     views/test/<name>/{render,gt,error,depth,opacity}
     views/mirror/<name>/{render,flipped,beta2,depth,opacity}
     curves/{train,lr,test}/<key>, curves/mirror/<quantity>
@@ -38,16 +39,20 @@ def make_blueprint(
     t = [entity_name(n) for n in test_names]
     m = [entity_name(n) for n in mirror_names]
     c = np.zeros(3) if center is None else np.asarray(center, dtype=np.float64)
+    eye = rrb.EyeControls3D(position=c + radius * np.array([1.1, -1.3, 1.5]), look_target=c, eye_up=(0.0, 0.0, 1.0))
     scene = rrb.Spatial3DView(
         origin="/world",
+        contents=["$origin/**", "- /world/field"],
         name="scene",
-        eye_controls=rrb.EyeControls3D(
-            position=c + radius * np.array([1.1, -1.3, 1.5]), look_target=c, eye_up=(0.0, 0.0, 1.0)
-        ),
+        eye_controls=eye,
         # Trajectories are logged one segment per step: show every segment up to the cursor.
         time_ranges=rrb.VisibleTimeRange(
             STEP, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative()
         ),
+    )
+    # The splats of the last bake at or before the cursor only (latest-at), with the cameras around them.
+    model = rrb.Spatial3DView(
+        origin="/world", contents=["/world/field", "/world/cameras/**"], name="model (splats)", eye_controls=eye
     )
     test_grid = rrb.Grid(
         contents=[
@@ -101,7 +106,8 @@ def make_blueprint(
     right.append(curves)
     shares.append(1.6)
     return rrb.Blueprint(
-        rrb.Horizontal(scene, rrb.Vertical(contents=right, row_shares=shares), column_shares=[1.0, 1.2]),
+        rrb.Horizontal(rrb.Tabs(scene, model, active_tab=0), rrb.Vertical(contents=right, row_shares=shares),
+                       column_shares=[1.0, 1.2]),  # fmt: skip
         rrb.TimePanel(timeline=STEP, state="collapsed", play_state="following"),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),

@@ -19,6 +19,7 @@ import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import matplotlib
 import numpy as np
@@ -34,6 +35,7 @@ from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer,
 from flipviz.viz import palette
 from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
 from flipviz.viz.rerun_viewer import RerunWebViewer
+from flipviz.viz.splats import cells_to_splats
 
 APP_ID = "flipviz"
 log = logging.getLogger("flipviz.rerun")
@@ -60,6 +62,7 @@ class RerunOptions:
     # chair most symmetry-breaking pixels stay below 0.1 (measured, step 700 at 48 px).
     beta2_range: tuple[float, float] = palette.BETA2_RANGE
     error_max: float = palette.ERROR_RANGE[1]  # colour range of the |render - GT| map
+    splats_every: int = 4  # the field as Gaussian splats at every n-th ImagesEvent and at the end (0: never)
 
 
 def camera_paths(cameras: list[CameraInfo]) -> list[str]:
@@ -80,8 +83,10 @@ AGREEMENT_SCALARS = ("disagreement", "mse_mirror", "mse_input", "mirrors_trained
 class RerunObserver(Observer):
     """Logs a run's setup, steps, periodic renders and end to a Rerun recording stream."""
 
-    def __init__(self, opts: RerunOptions) -> None:
-        self.opts = opts
+    def __init__(self, opts: RerunOptions, bake: Callable[[], dict] | None = None) -> None:
+        """`bake`: the trainer's `point_cloud` (the field's cells), logged as splats at a few steps."""
+        self.opts, self._bake = opts, bake
+        self._n_images, self._splats_step = 0, -1
         self.rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
         self.viewer: RerunWebViewer | None = None
         self._lock = threading.Lock()
@@ -334,7 +339,23 @@ class RerunObserver(Observer):
                 self._log_view(f"views/test/{entity_name(v.name)}", v, gt_name="gt")
             for v in event.mirror_views:
                 self._log_view(f"views/mirror/{entity_name(v.name)}", v, gt_name="flipped")
+            self._n_images += 1
+            if self.opts.splats_every > 0 and self._n_images % self.opts.splats_every == 0:
+                self._log_splats(event.step)
             self._maybe_flush(force=True)
+
+    def _log_splats(self, step: int) -> None:
+        """The field's solid cells as Gaussian splats (splats.py): the 3D model in the recording. One
+        scale for all (Rerun repeats a single value over the instances): 16 bytes a splat."""
+        baked = self._bake() if self._bake is not None and step != self._splats_step else None
+        if baked is None:
+            return
+        self._splats_step = step
+        solid = baked["solid"]
+        s = cells_to_splats(baked["points"][solid], to_uint8(baked["rgb"][solid][:, None, :])[:, 0], baked["alpha"][solid],
+                            float(baked["cell"]))  # fmt: skip
+        rgba = np.concatenate([s.rgbs, np.round(255.0 * s.opacities).astype(np.uint8)[:, None]], 1)
+        self.rec.log("world/field", rr.GaussianSplats3D(s.centers, scales=[[s.sigma] * 3], colors=rgba))
 
     def _log_view(self, base: str, v: RenderedView, gt_name: str) -> None:
         rec = self.rec
@@ -360,6 +381,8 @@ class RerunObserver(Observer):
             for k, v in event.metrics.items():
                 if isinstance(v, (int, float)) and not isinstance(v, bool):
                     rec.log(f"curves/final/{entity_name(k)}", rr.Scalars(float(v)))
+            if self.opts.splats_every > 0 and event.status in ("finished", "stopped"):
+                self._log_splats(event.step)  # the model as it ended (unless the last images logged it)
             self._maybe_flush(force=True)
             # Finalise the file (footer). A served viewer keeps what it received until close().
             rec.disconnect()
@@ -432,6 +455,7 @@ def recording_path(cfg: TrainConfig, run_dir: Path) -> Path | None:
     return path
 
 
-def make_rerun_observer(cfg: TrainConfig, run_dir: Path, **overrides) -> RerunObserver:
-    """The observer the CLI and the app attach (see `recording_path`; cfg.rerun_serve)."""
-    return RerunObserver(RerunOptions(path=recording_path(cfg, run_dir), serve=cfg.rerun_serve, **overrides))
+def make_rerun_observer(cfg: TrainConfig, run_dir: Path, bake: Callable[[], dict] | None = None, **overrides) -> RerunObserver:
+    """The observer the CLI and the app attach (see `recording_path`; cfg.rerun_serve); `bake`: the
+    trainer's `point_cloud`, for the field's splats."""
+    return RerunObserver(RerunOptions(path=recording_path(cfg, run_dir), serve=cfg.rerun_serve, **overrides), bake)

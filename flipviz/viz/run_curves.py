@@ -52,11 +52,13 @@ class RunCurves:
     agree_steps: list[float] = field(default_factory=list)
     disagreement: list[float] = field(default_factory=list)
     dropped_at: int | None = None  # the step at which the agreement gate dropped the mirrors
+    planned_steps: int = 0  # the run's steps at setup
+    restarted: bool = False  # the field restarted after the drop (--after-drop restart: the run grew longer)
 
     @classmethod
     def for_run(cls, setup: SetupEvent) -> "RunCurves":
         limit = float(setup.settings.get("disagreement_limit", float("inf")))
-        return cls(start_plane=setup.plane, true_plane=setup.true_plane, limit=limit)
+        return cls(start_plane=setup.plane, true_plane=setup.true_plane, limit=limit, planned_steps=setup.total_steps)
 
     @property
     def plane_vs_truth(self) -> bool:
@@ -78,6 +80,7 @@ class RunCurves:
             self.disagreement.append(float(d))
         if ev.scalars.get("mirrors_trained") == 0.0 and self.dropped_at is None:
             self.dropped_at = int(ev.step)
+        self.restarted = self.restarted or ev.total_steps > self.planned_steps > 0
         if ev.plane is not None:
             ref = self.true_plane if self.true_plane is not None else self.start_plane
             if ref is not None:

@@ -240,8 +240,9 @@ class App(Observer):
                          np.asarray(ev.ray_direction))  # fmt: skip
 
     def _on_unsnap(self) -> None:
-        """A browser's camera left its snapped view: the frustums near it and the Views panel's images go."""
+        """A browser's camera left its snapped view: what was hidden comes back, the Views panel's images go."""
         self.scene.unhide()
+        self.mirror.set_snapped(False)
         self.snap.clear()
         self.probe.clear()
 
@@ -289,6 +290,7 @@ class App(Observer):
         from flipviz.viz.viser_render import Snapped
 
         self.scene.hide_near(cam.center, 0.35 * float(self.setup.sphere_radius) if self.setup else 1.0)
+        self.mirror.set_snapped(True)
         self.views.snap(client.client_id, Snapped(cam, reference, name))
 
     def _run_dir(self) -> Path | None:
@@ -350,7 +352,7 @@ class App(Observer):
             try:
                 from flipviz.viz.rerun_observer import make_rerun_observer
 
-                trainer.add_observer(make_rerun_observer(tcfg, trainer.run_dir))
+                trainer.add_observer(make_rerun_observer(tcfg, trainer.run_dir, bake=trainer.point_cloud))
             except Exception as e:
                 log.warning("Rerun recording disabled: %s: %s", type(e).__name__, e)
         with self._trainer_lock:

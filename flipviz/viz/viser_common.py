@@ -110,7 +110,21 @@ def visualize_output(out: dict, which: str, view: ScalarView = ScalarView()) -> 
     if which == "RGB":
         return to_uint8(x)
     lo, hi, _ = output_range(out, which, view)  # type: ignore[misc]
+    if which == "beta^2":
+        return beta2_over_render(out, lo, hi)
     return palette.colormap(np.asarray(x).reshape(x.shape[:2]), lo, hi)
+
+
+def beta2_over_render(out: dict, lo: float, hi: float) -> np.ndarray:
+    """beta^2 on the object, over the render: colour = (1 - opacity) rgb + opacity colormap(beta^2), so
+    empty space stays as rendered and the object's own uncertainty is what stands out (uint8 RGB)."""
+    b2 = np.asarray(out["beta2"], np.float32)
+    colour = palette.colormap(b2.reshape(b2.shape[:2]), lo, hi).astype(np.float32)
+    if out.get("opacity") is None:
+        return colour.astype(np.uint8)
+    o = np.clip(np.asarray(out["opacity"], np.float32).reshape(b2.shape[:2]), 0.0, 1.0)[..., None]
+    rgb = to_uint8(out["rgb"]).astype(np.float32)
+    return np.round((1.0 - o) * rgb + o * colour).astype(np.uint8)
 
 
 def error_map(pred: np.ndarray, ref: np.ndarray) -> np.ndarray:

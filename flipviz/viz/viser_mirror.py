@@ -51,7 +51,7 @@ corrects the small pose errors and the learned variance beta^2 down-weights pixe
 Where the object is **not** symmetric (a mug's handle, a one-sided lamp), the flipped views
 contradict the real ones. Show the plane gizmo and drag it, or type a plane, to see the mirrored
 cameras move (pale orange: preview); press *Score mirrors* to measure each flipped view against the
-current model (🟥 contradicts, 🟩 agrees); set *Mirrored frustums show* to *disagreement* to see
+current model (red: contradicts, green: agrees); set *Mirrored frustums show* to *disagreement* to see
 where; then restart training with the new plane."""
 
 FRUSTUM_IMAGES = ("flipped image", "disagreement", "beta^2")
@@ -171,6 +171,7 @@ class MirrorLesson:
         self.frustum_shows.on_update(lambda _: self._show_frustum_images())
         self.last_images: ImagesEvent | None = None
         self.quad: viser.MeshHandle | None = None  # the mirror plane, drawn apart from its gizmo
+        self.snapped = False  # a browser is at a snapped view: the square would wash over it
         self.start_plane: Plane | None = None  # where training started the plane (it may move: --refine-plane)
         self.true_plane: Plane | None = None
         self.trail: list[np.ndarray] = []  # the tip of the refined plane's normal, step after step
@@ -216,7 +217,7 @@ class MirrorLesson:
             v, f = plane_quad(0.55 * r)
             self.quad = scene.add_mesh_simple(
                 "/mirror_plane", v, f, color=palette.MIRROR_PLANE, opacity=0.18, side="double", cast_shadow=False,
-                receive_shadow=False, wxyz=plane_wxyz(plane), position=plane.point, visible=bool(self.show_plane.value),
+                receive_shadow=False, wxyz=plane_wxyz(plane), position=plane.point, visible=bool(self.show_plane.value) and not self.snapped,
             )  # fmt: skip
             self.preview, self.preview_frame = [], None
             self.trains_mirrors = setup.plane is not None
@@ -279,7 +280,8 @@ class MirrorLesson:
             self.gate_text.content = (
                 f"**Mirrors dropped at step {curves.dropped_at}:** on the object their squared error was "
                 f"{curves.disagreement[-1]:.1f}x the inputs' (limit {curves.limit:g}), so they contradict what the "
-                "inputs saw. Training goes on with the inputs alone."
+                "inputs saw. "
+                + ("A fresh field trains on the inputs alone, as B/L." if curves.restarted else "Training goes on with the inputs alone.")
             )  # fmt: skip
         if self.agree_plot is not None and len(agree) == 3 and len(agree[0]) >= 2:
             top = float(np.nanmax([*agree[1], curves.limit if np.isfinite(curves.limit) else 0.0]))
@@ -314,7 +316,12 @@ class MirrorLesson:
         if self.gizmo is not None:
             self.gizmo.visible = bool(self.show_gizmo.value)
         if self.quad is not None:
-            self.quad.visible = bool(self.show_plane.value)
+            self.quad.visible = bool(self.show_plane.value) and not self.snapped
+
+    def set_snapped(self, snapped: bool) -> None:
+        """Hide the plane's square while a browser is at a snapped view (its gizmo stays, if asked for)."""
+        self.snapped = snapped
+        self._set_gizmo_visible()
 
     def _azimuth(self, plane: Plane) -> float:
         """The azimuth of the plane's normal about up, in the slider's range and step."""
@@ -511,7 +518,7 @@ class MirrorLesson:
             self.est_text.content = ESTIMATE_HELP
             return
         n, p = est.plane.normal + 0.0, est.plane.point + 0.0
-        verdict = "🟩 confident" if est.confident else "🟥 **not confident: the object may not be mirror-symmetric**"
+        verdict = "confident" if est.confident else "**not confident: the object may not be mirror-symmetric**"
         lines = [
             f"Normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f}) through ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}); "
             f"confidence **{est.confidence:.2f}** ({verdict}; trusted from {CONFIDENT:g}), {est.seconds:.0f} s.",
@@ -599,6 +606,6 @@ class MirrorLesson:
         lo, hi = palette.SCORE_RANGE
         self.table.content = (
             "Consistency = PSNR of the model seen from each mirrored camera vs its flipped image "
-            f"(low = the symmetry assumption fails there). Frustum colours: 🟥 {lo:g} dB or less (contradicts), "
-            f"🟨 {0.5 * (lo + hi):g} dB, 🟩 {hi:g} dB or more (agrees).\n\n" + head + "\n".join(rows)
+            f"(low = the symmetry assumption fails there). Frustum colours: red {lo:g} dB or less (contradicts), "
+            f"yellow {0.5 * (lo + hi):g} dB, green {hi:g} dB or more (agrees).\n\n" + head + "\n".join(rows)
         )

@@ -1,11 +1,12 @@
-"""The live 3D preview: the field baked into a point cloud that the browser draws at full frame rate.
+"""The live 3D preview: the field baked into Gaussian splats that the browser draws at full frame rate.
 
 Every `period_s` while training (and at each new run) the render worker asks the trainer for the
-field's opaque cells (`Trainer.point_cloud`, a few hundred ms) and sends them to each browser as
-its own point cloud, coloured by RGB, by opacity, or by beta^2 (where the variance head learned
-that the mirrored images disagree with the model). A browser shows the cloud while its camera
-moves, or always when it renders no view of its own; the exact server render replaces it once
-the camera is still.
+field's opaque cells (`Trainer.point_cloud`, a few hundred ms), one bake for all browsers, and
+sends each browser its own splats (splats.py: one Gaussian per cell), coloured by RGB, by opacity,
+or by beta^2 (where the variance head learned that the mirrored images disagree with the model);
+*Preview drawn as* points shows the cells as squares instead. A browser shows the preview while
+its camera moves, or always when it renders no view of its own; the exact server render replaces
+it once the camera is still.
 """
 
 from __future__ import annotations
@@ -19,10 +20,14 @@ import viser
 
 from flipviz.data.images import to_uint8
 from flipviz.viz import palette
+from flipviz.viz.splats import Splats, cells_to_splats
 from flipviz.viz.viser_guard import guard_choice
 from flipviz.viz.viser_render import BACKGROUND, RenderWorker
 
 COLOURS = ("RGB", "opacity", "beta^2")
+STYLES = ("splats", "points")
+POINT_BYTES = 9  # float16 xyz + uint8 rgb per point
+MAPPED_FLOOR = 0.6  # the least opacity of a splat coloured by a scale (opacity, beta^2): its colour must read
 
 
 class LivePreview:
@@ -34,18 +39,22 @@ class LivePreview:
         self.period_s = period_s
         self.baked: dict | None = None
         self.visible: dict[int, bool] = {}  # client id -> cloud shown
-        self.handles: dict[int, viser.PointCloudHandle] = {}
+        self.handles: dict[int, viser.SceneNodeHandle] = {}
         self.last_bake_s = 0.0
-        self._drawn: tuple[np.ndarray, np.ndarray, float] | None = None  # the last bake as shown: points, colours, size
+        self._drawn: Splats | None = None  # the last bake as shown
         self._lock = threading.Lock()
         gui = server.gui
-        self.enabled = gui.add_checkbox("Live 3D preview", True, hint="The field as points, drawn by your browser")
+        self.enabled = gui.add_checkbox("Live 3D preview", True, hint="The field as Gaussian splats, drawn by your browser")
         self.colour = guard_choice(gui.add_dropdown("Preview colour", COLOURS, initial_value="RGB"), COLOURS)
+        self.style = guard_choice(gui.add_dropdown(
+            "Preview drawn as", STYLES, initial_value="splats", hint="splats: one Gaussian per cell; points: the cells as squares"
+        ), STYLES)  # fmt: skip
         self.colorbar = gui.add_image(np.full((46, 320, 3), 255, np.uint8), label="Preview scale", format="png")
         self.colorbar.visible = False
         self.status = gui.add_markdown("_The first bake comes with the first steps._")
         self.enabled.on_update(lambda _: self._apply_all())
         self.colour.on_update(lambda _: self._apply_all())
+        self.style.on_update(lambda _: self._apply_all())
 
     @property
     def on(self) -> bool:
@@ -76,20 +85,22 @@ class LivePreview:
         self.handles.clear()
 
     # ---- drawing ----------------------------------------------------------------------------
-    def shown(self, baked: dict) -> tuple[np.ndarray, np.ndarray, tuple[float, float, str] | None]:
-        """The points to draw for the chosen colouring, their uint8 colours (P, 3), and the scale.
+    def shown(self, baked: dict) -> tuple[Splats, tuple[float, float, str] | None]:
+        """The cells to draw for the chosen colouring, as splats, and the colour scale.
 
         RGB and opacity show the solid cells; beta^2 adds the faint cells the model is most unsure
-        of, on a log scale from beta_min^2 up (per-cell variances span decades)."""
-        which = self.colour.value
-        solid = baked["solid"]
+        of, on a log scale from beta_min^2 up (per-cell variances span decades). RGB splats have
+        the cells' own opacity; colour-mapped ones at least MAPPED_FLOOR, so that their colour reads."""
+        which, solid, cell = self.colour.value, baked["solid"], float(baked["cell"])
         if which == "beta^2" and "beta2" in baked:
             lo, hi = palette.BETA2_LOG10_RANGE
             c = palette.colormap(np.log10(baked["beta2"]), lo, hi)
-            return baked["points"], c, (lo, hi, "log10 beta^2 per cell")
+            return cells_to_splats(baked["points"], c, baked["alpha"], cell, MAPPED_FLOOR), (lo, hi, "log10 beta^2 per cell")
+        alpha = baked["alpha"][solid]
         if which == "opacity":
-            return baked["points"][solid], palette.colormap(baked["alpha"][solid], 0.0, 1.0), (0.0, 1.0, "opacity of one cell")
-        return baked["points"][solid], to_uint8(baked["rgb"][solid][:, None, :])[:, 0], None
+            c = palette.colormap(alpha, 0.0, 1.0)
+            return cells_to_splats(baked["points"][solid], c, alpha, cell, MAPPED_FLOOR), (0.0, 1.0, "opacity of one cell")
+        return cells_to_splats(baked["points"][solid], to_uint8(baked["rgb"][solid][:, None, :])[:, 0], alpha, cell), None
 
     def set_visible(self, client_id: int, visible: bool) -> None:
         """Show or hide this client's cloud (the viewport renderer hides it under a still render)."""
@@ -110,16 +121,17 @@ class LivePreview:
         """Colour the last bake once for the chosen colouring, then send it to every client."""
         with self._lock:
             baked = self.baked
-        points, colours, bar = self.shown(baked) if baked is not None else (None, None, None)
-        self._drawn = None if points is None else (points, colours, 1.2 * float(baked["cell"]))
+        splats, bar = self.shown(baked) if baked is not None else (None, None)
+        self._drawn = splats
         self.colorbar.visible = bar is not None and self.on
         if bar is not None:
             self.colorbar.image = palette.colorbar(*bar)
-        if baked is not None:
-            n, kb = len(points), len(points) * 9 / 1024  # float16 xyz + uint8 rgb
+        if splats is not None:
+            kind, size = (("splats", splats.nbytes) if self.style.value == "splats"
+                          else ("points", len(splats) * POINT_BYTES))  # fmt: skip
             self.status.content = (
-                f"{n} points at step {baked['step']}, baked in {1000 * self.last_bake_s:.0f} ms, {kb:.0f} kB"
-                if self.on else "_Preview off._"
+                f"{len(splats)} {kind} at step {baked['step']}, baked in {1000 * self.last_bake_s:.0f} ms, "
+                f"{size / 2**20:.1f} MB per browser" if self.on else "_Preview off._"
             )  # fmt: skip
         for cid in list(self.visible):
             self._client_scene(cid, lambda s, cid=cid: self._draw(s, cid))
@@ -130,10 +142,16 @@ class LivePreview:
             scene.remove_by_name("/preview3d")
             self.handles.pop(client_id, None)
             return
-        points, colours, size = drawn
-        self.handles[client_id] = scene.add_point_cloud(
-            "/preview3d", points, colours, point_size=size, point_shape="square",
-            precision="float16", visible=self.visible.get(client_id, True),
+        visible = self.visible.get(client_id, True)
+        if self.style.value == "points":
+            self.handles[client_id] = scene.add_point_cloud(
+                "/preview3d", drawn.centers, drawn.rgbs, point_size=2.0 * drawn.sigma, point_shape="square",
+                precision="float16", visible=visible,
+            )  # fmt: skip
+            return
+        self.handles[client_id] = scene.add_gaussian_splats(
+            "/preview3d", drawn.centers, drawn.covariances, drawn.rgbs.astype(np.float32) / 255.0, drawn.opacities[:, None],
+            visible=visible,
         )  # fmt: skip
 
     def _client_scene(self, client_id: int, fn: Callable[[viser.SceneApi], None]) -> None:

@@ -36,6 +36,7 @@ from flipviz.viz import palette
 from flipviz.viz.viser_common import (
     OUTPUTS,
     ScalarView,
+    beta2_over_render,
     camera_from_viser,
     error_map,
     output_range,
@@ -409,7 +410,8 @@ class ViewportRenderer:
             rgb[:, x0 : x0 + w] = error_map(mine, ref)
             return rgb, (*palette.ERROR_RANGE, "|render - reference|")
         if view.snap_layer == "beta^2" and out.get("beta2") is not None:
-            rgb[:, x0 : x0 + w] = palette.colormap(out["beta2"][:, x0 : x0 + w], *palette.BETA2_RANGE)
+            rgb[:, x0 : x0 + w] = beta2_over_render({k: v[:, x0 : x0 + w] for k, v in out.items() if v is not None},
+                                                    *palette.BETA2_RANGE)  # fmt: skip
             return rgb, (*palette.BETA2_RANGE, "beta^2")
         a = float(view.blend)
         rgb[:, x0 : x0 + w] = to_uint8((1.0 - a) * ref + a * np.clip(mine, 0, 1))

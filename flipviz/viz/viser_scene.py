@@ -31,6 +31,7 @@ GROUPS: dict[str, tuple[str, tuple[int, int, int]]] = {
 KIND_GROUP = {
     "input": "inputs", "test": "tests", "mirror_init": "mirrors", "mirror_true": "mirror_true", "upper": "upper"
 }  # fmt: skip
+SNAP_HIDES = ("trajectories", "sphere", "true_plane")  # groups in the way of a snapped view, hidden while it lasts
 MAX_TRAJ_POINTS = 200
 NESTED = 1.4  # a test frustum where a mirrored camera lands: this much larger, so the two nest
 
@@ -140,15 +141,17 @@ class RunScene:
                 self.groups[group].visible = bool(visible)
 
     def hide_near(self, center: np.ndarray, radius: float) -> None:
-        """Hide the frustums within `radius` of a snapped camera, and the BA trajectories, so the view is seen."""
+        """Hide what would lie between a snapped camera and the object: the frustums within `radius` of
+        it, the BA trajectories, the sphere (the camera sits on it) and the true plane's square."""
         with self._lock:
             self._unhide()
             for h in self.frustums:
                 if np.linalg.norm(np.asarray(h.position) - center) < radius and h.visible:
                     h.visible = False
                     self.hidden.append(h)
-            if "trajectories" in self.groups:
-                self.groups["trajectories"].visible = False
+            for g in SNAP_HIDES:
+                if g in self.groups:
+                    self.groups[g].visible = False
 
     def unhide(self) -> None:
         with self._lock:
@@ -158,8 +161,9 @@ class RunScene:
         for h in self.hidden:
             h.visible = True
         self.hidden = []
-        if "trajectories" in self.groups:
-            self.groups["trajectories"].visible = self.visible["trajectories"]
+        for g in SNAP_HIDES:
+            if g in self.groups:
+                self.groups[g].visible = self.visible[g]
 
     def update_mirrors(self, c2w: np.ndarray) -> None:
         """Move the mirrored frustums to the refined poses (M, 4, 4) and extend their trajectories. Only
