@@ -4,9 +4,9 @@
 
 1. app.png: the chair training (Flip+U), your view rendered at the canvas size;
 2. app_snapped.png: snapped to an unobserved test view, ground truth and render blended half-half;
-3. app_mirror.png: the mug, its mirrored frustums coloured by their scores and showing where the
-   flipped images disagree with the model (at the defaults the mug's plane is doubted and its
-   mirrors dropped: "Show the mirrors anyway" draws them);
+3. app_mirror.png: the mug with --unconfident-plane drop (its doubted plane's mirrors are not trained:
+   "Show the mirrors anyway" draws them), its mirrored frustums coloured by their scores and showing
+   where the flipped images disagree with the model;
 5. app_compare.png: the Compare tab, the chair's Flip+U (A) side by side with a finished B/L run (B)
    from an unobserved test view, both scored;
 4. app_capture.png: a robot's drive-by capture of the turned chair (`export-scene --trajectory
@@ -19,6 +19,8 @@
 8. app_probe.png: snapped to an unobserved view, a pixel of the chair clicked: the pixel probe's reading
    and its marker; app_curves.png: the Mirror tab's charts over the steps (each mirrored camera's
    rotation error, the refined plane's error).
+9. app_agreement.png: the mug at the defaults (its doubted plane tried): the Mirror tab's agreement
+   chart after the gate dropped the mirrors and the field restarted on the inputs.
 """
 
 from __future__ import annotations
@@ -46,9 +48,9 @@ class Args:
     out: Path = ROOT / "assets"
     steps_before: int = 700
     """Training steps before the first screenshot."""
-    shots: str = "orbit,capture,compare,plane,fog,probe"
+    shots: str = "orbit,capture,compare,plane,fog,probe,agreement"
     """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png; compare: app_compare.png;
-    plane: app_plane.png; fog: app_fog.png; probe: app_probe.png, app_curves.png."""
+    plane: app_plane.png; fog: app_fog.png; probe: app_probe.png, app_curves.png; agreement: app_agreement.png."""
 
 
 def main(args: Args) -> None:
@@ -65,6 +67,8 @@ def main(args: Args) -> None:
         fog_shot(args)
     if "probe" in args.shots:
         probe_shots(args)
+    if "agreement" in args.shots:
+        agreement_shot(args)
     print(f"screenshots in {args.out}")
 
 
@@ -164,6 +168,24 @@ def plane_shot(args: Args) -> None:
         app.stop()
 
 
+def agreement_shot(args: Args) -> None:
+    cfg = AppConfig(scene="mug", no_rrd=True, port=0, images_every=100, out=Path(tempfile.mkdtemp()) / "run")
+    app = App(cfg).start()
+    try:
+        wait_until(lambda: app.trainer is not None and app.trainer.field_start > 0 and app.step > app.trainer.field_start + 50,
+                   900, what="the gate's drop and restart")  # fmt: skip
+        with chromium() as d:
+            open_page(d, app.port, settle_s=5.0)
+            tab(d, "Mirror")
+            wait_until(lambda: "Mirrors dropped" in app.mirror.gate_text.content, 60, what="the gate's verdict")
+            chart = d.find_element("xpath", "//*[starts-with(normalize-space(), 'Mirrors vs inputs')]")
+            d.execute_script("arguments[0].scrollIntoView({block: 'center'});", chart)  # the ratio, the limit, the drop
+            time.sleep(4.0)
+            (args.out / "app_agreement.png").write_bytes(screenshot_png(d))
+    finally:
+        app.stop()
+
+
 def fog_shot(args: Args) -> None:
     cfg = AppConfig(scene="chair", method="bl", mirror_plane="official", no_rrd=True, port=0, images_every=100,
                     steps=600, out=Path(tempfile.mkdtemp()) / "run")  # fmt: skip
@@ -185,9 +207,9 @@ def fog_shot(args: Args) -> None:
 
 
 @contextmanager
-def chair_in_browser(args: Args) -> Iterator[tuple[App, object]]:
-    """The chair training at the defaults, past `args.steps_before` steps, open in headless Chromium."""
-    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
+def chair_in_browser(args: Args, **settings) -> Iterator[tuple[App, object]]:
+    """The chair training at the defaults (but `settings`), past `args.steps_before` steps, in headless Chromium."""
+    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100, **settings)
     app = App(cfg).start()
     try:
         wait_until(lambda: app.step >= args.steps_before, 600, what="training")
@@ -216,7 +238,7 @@ def probe_shots(args: Args) -> None:
 
 
 def orbit_shots(args: Args) -> None:
-    with chair_in_browser(args) as (app, d):
+    with chair_in_browser(args, unconfident_plane="drop") as (app, d):  # the chair's plane is confident: no change
         (args.out / "app.png").write_bytes(screenshot_png(d))
         snap_to(d, app, "test 3")
         tab(d, "Train")

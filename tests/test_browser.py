@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import viser
 import pytest
 from browser import CountingProxy, chromium, chromium_available, screenshot_png, wait_until
 
@@ -156,6 +157,16 @@ def test_2_live_3d_preview_draws_without_server_renders(app, browser):
     img = wait_view(browser, "2_preview", lambda i: colourful(i) > 0.01, 30)
     assert len(app.preview.baked["points"]) > 1000
     assert colourful(img) > 0.01 and app.worker.busy_s - busy0 < 2.0  # no view renders, only bakes
+    assert isinstance(app.preview.handles[cid], viser.GaussianSplatHandle)  # drawn as splats (issue 21)
+    tab(browser, "Show")
+    checkbox(browser, "Live 3D preview", False)  # what the splats drew: the pixels that change without them
+    bare = wait_view(browser, "2_no_preview", lambda i: (np.abs(i.astype(int) - img).max(-1) > 40).mean() > 0.02, 30)
+    changed = np.abs(bare.astype(int) - img).max(-1) > 40
+    rows, cols = np.nonzero(changed)
+    h, w = changed.shape  # the object sits where the camera looks: the splats' pixels are around the middle
+    assert abs(rows.mean() / h - 0.5) < 0.25 and abs(cols.mean() / w - 0.5) < 0.25, (rows.mean() / h, cols.mean() / w)
+    checkbox(browser, "Live 3D preview", True)
+    tab(browser, "Train")
     checkbox(browser, "Render my view", True)
 
 

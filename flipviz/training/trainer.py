@@ -239,7 +239,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ the loop
     def run(self) -> dict:
-        """Train to cfg.steps (or until stopped / NaN); returns the final metrics."""
+        """Train to total_steps (cfg.steps, longer after a restart; or until stopped / NaN); returns the final metrics."""
         cfg = self.cfg
         if self.read_only:
             raise RuntimeError("a run opened read-only (open_run) renders; it does not train")
