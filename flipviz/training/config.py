@@ -74,7 +74,7 @@ def type_words(hint: object) -> str:
 # from flipviz's defaults, its choice (docs/AUTHORS_SETTING.md gives each with its file and line).
 AUTHORS_PRESET: dict[str, object] = {
     "background": "last", "density_on": "all", "nll_channels": "mean", "beta_from": "position", "refine": "all",
-    "mirror_pose": "lookat", "refine_plane": False,
+    "mirror_pose": "lookat", "refine_plane": False, "disagreement_limit": float("inf"),
 }  # fmt: skip
 PAPER_PRESET: dict[str, object] = {
     "field": "nerf", "n_samples": 128, "steps": 50_000, "uncertainty_start": 0.2, "batch_rays": 1024, **AUTHORS_PRESET,
