@@ -35,7 +35,7 @@ from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer,
 from flipviz.viz import palette
 from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
 from flipviz.viz.rerun_viewer import RerunWebViewer
-from flipviz.viz.splats import cells_to_splats
+from flipviz.viz.splats import solid_splats
 
 APP_ID = "flipviz"
 log = logging.getLogger("flipviz.rerun")
@@ -351,9 +351,7 @@ class RerunObserver(Observer):
         if baked is None:
             return
         self._splats_step = step
-        solid = baked["solid"]
-        s = cells_to_splats(baked["points"][solid], to_uint8(baked["rgb"][solid][:, None, :])[:, 0], baked["alpha"][solid],
-                            float(baked["cell"]))  # fmt: skip
+        s = solid_splats(baked)
         rgba = np.concatenate([s.rgbs, np.round(255.0 * s.opacities).astype(np.uint8)[:, None]], 1)
         self.rec.log("world/field", rr.GaussianSplats3D(s.centers, scales=[[s.sigma] * 3], colors=rgba))
 

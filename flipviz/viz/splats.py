@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from flipviz.data.images import to_uint8
+
 SIGMA_PER_CELL = 0.6  # standard deviation of a cell's Gaussian, in cells: at 0.5 cells neighbours barely touch
 VISER_BYTES = 32  # per splat in viser's GaussianSplatsMessage
 
@@ -46,3 +48,10 @@ def cells_to_splats(points: np.ndarray, rgbs: np.ndarray, alpha: np.ndarray, cel
     `alpha` (N,), lattice spacing `cell`; `floor`: the least opacity drawn (for colour-mapped views)."""
     opacity = np.clip(np.maximum(np.asarray(alpha, np.float32), floor), 0.0, 1.0)
     return Splats(np.asarray(points, np.float32), SIGMA_PER_CELL * float(cell), np.asarray(rgbs, np.uint8), opacity)
+
+
+def solid_splats(baked: dict) -> Splats:
+    """The solid cells of a bake (`Trainer.point_cloud`) in their own colours and opacities."""
+    solid = baked["solid"]
+    rgb = to_uint8(baked["rgb"][solid][:, None, :])[:, 0]  # (N, 3) uint8
+    return cells_to_splats(baked["points"][solid], rgb, baked["alpha"][solid], float(baked["cell"]))

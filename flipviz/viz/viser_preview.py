@@ -18,9 +18,8 @@ from typing import Callable
 import numpy as np
 import viser
 
-from flipviz.data.images import to_uint8
 from flipviz.viz import palette
-from flipviz.viz.splats import Splats, cells_to_splats
+from flipviz.viz.splats import Splats, cells_to_splats, solid_splats
 from flipviz.viz.viser_guard import guard_choice
 from flipviz.viz.viser_render import BACKGROUND, RenderWorker
 
@@ -100,7 +99,7 @@ class LivePreview:
         if which == "opacity":
             c = palette.colormap(alpha, 0.0, 1.0)
             return cells_to_splats(baked["points"][solid], c, alpha, cell, MAPPED_FLOOR), (0.0, 1.0, "opacity of one cell")
-        return cells_to_splats(baked["points"][solid], to_uint8(baked["rgb"][solid][:, None, :])[:, 0], alpha, cell), None
+        return solid_splats(baked), None
 
     def set_visible(self, client_id: int, visible: bool) -> None:
         """Show or hide this client's cloud (the viewport renderer hides it under a still render)."""
