@@ -1,6 +1,6 @@
-"""Break the objective on purpose, five ways, and check that the test suite notices each one.
+"""Break the core on purpose, eight ways, and check that the test suite notices each one.
 
-    python benchmarks/check_mutations.py             # every mutation, the objective's tests
+    python benchmarks/check_mutations.py             # every mutation, against the tests that pin it
     python benchmarks/check_mutations.py --tests tests   # against the whole suite (slower)
 
 Each mutation is one textual edit of one file, applied in a temporary copy of the repository;
@@ -30,6 +30,7 @@ class Mutation:
     path: str  # relative to the repository
     old: str  # must occur exactly once in the file
     new: str
+    tests: tuple[str, ...] = ("tests/test_objective.py",)  # the tests that pin it
 
 
 MUTATIONS = (
@@ -53,6 +54,21 @@ MUTATIONS = (
         "(e) beta^2 is detached in the renderer", "flipviz/model/renderer.py",
         "wp * F.softplus(raw))", "wp * F.softplus(raw).detach())",
     ),
+    Mutation(
+        "(f) BARF's coarse-to-fine window pinned open", "flipviz/model/nerf_field.py",
+        "self.progress.fill_(step / max(total_steps, 1))", "self.progress.fill_(1.0)",
+        ("tests/test_model.py",),
+    ),
+    Mutation(
+        "(g) the training-batch PSNR over the channels' sum", "flipviz/training/trainer.py",
+        '"psnr": psnr(float(((out["rgb"].detach() - target) ** 2).mean())),',
+        '"psnr": psnr(float(((out["rgb"].detach() - target) ** 2).sum(-1).mean())),',
+        ("tests/test_training.py::test_the_training_batch_psnr_averages_the_squared_error_over_rays_and_channels",),
+    ),
+    Mutation(
+        "(h) the reflect and lookat pose rules swapped", "flipviz/geometry/mirror.py",
+        'if pose == "reflect":', 'if pose == "lookat":', ("tests/test_geometry.py",),
+    ),
 )  # fmt: skip
 
 
@@ -66,8 +82,8 @@ def apply(root: Path, m: Mutation) -> None:
 
 @dataclass
 class Args:
-    tests: tuple[str, ...] = ("tests/test_objective.py",)
-    """Test paths to run against each mutant."""
+    tests: tuple[str, ...] = ()
+    """Test paths to run against every mutant (default: each mutation's own tests)."""
 
 
 def main(args: Args) -> int:
@@ -79,7 +95,7 @@ def main(args: Args) -> int:
                 shutil.copytree(ROOT / d, root / d, ignore=shutil.ignore_patterns("__pycache__"))
             apply(root, m)
             env = dict(os.environ, PYTHONPATH=str(root))
-            r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", *args.tests],
+            r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", *(args.tests or m.tests)],
                                cwd=root, env=env, capture_output=True, text=True)  # fmt: skip
             caught = r.returncode == 1
             last = (r.stdout.strip().splitlines() or ["(no output)"])[-1]

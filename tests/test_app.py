@@ -392,8 +392,9 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             m = await c.wait_for(bg, start=n, timeout=30)
             img, half = jpeg(m["rgb_data"])[..., ::-1], size[1] // 2
             assert img.shape[:2] == size and m["depth_data"] is None
-            assert psnr(img[body, half + 2 :], b_render(half)[body, 2:]) > 28
-            assert psnr(img[body, half + 2 :], b_render()[body, half + 2 :]) < 25  # not B's right half of the view
+            centre = psnr(img[body, half + 2 :], b_render(half)[body, 2:])
+            right_half = psnr(img[body, half + 2 :], b_render()[body, half + 2 :])
+            assert centre > 28 and centre > right_half + 10, (centre, right_half)  # B's centre half, not its right half
             # difference: |A - B| on the error scale; where both show the white background it is 0 (viridis' dark end)
             n = len(c.messages)
             await c.set_value("Show", "difference")
@@ -437,7 +438,11 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
     from flipviz.viz import palette
 
     palette_dark = palette.colormap(np.zeros((1, 1)), *palette.ERROR_RANGE)[0, 0]
-    run(go())
+    try:
+        run(go())
+    except BaseException:
+        app.compare.stop()  # B unloaded: the shared app's next tests start without it
+        raise
     metrics = __import__("json").loads((tmp_path / "b" / "metrics.json").read_text())
     key = next(iter(app.compare.scores))
     b_psnr = next(v["psnr"] for v in metrics["per_view"] if v["name"] == app.snap.views[key][2].name)

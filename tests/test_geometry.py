@@ -215,7 +215,7 @@ def test_opposite_maps_observed_half_onto_unobserved_half(start):
     observed = {(start + j) % 16 for j in range(8)}
     unobserved = [ring_camera(RING_AZ[k]).center for k in range(16) if k not in observed]
     hit = set()
-    for m in mirror_cameras_for_plane(cams, plane, sphere):
+    for m in mirror_cameras_for_plane(cams, plane, sphere, np.array([0.0, 0.0, 1.0]), "lookat"):
         d = [np.linalg.norm(m.center - u) for u in unobserved]
         assert min(d) < 1e-9
         hit.add(int(np.argmin(d)))
@@ -268,11 +268,38 @@ def test_initial_equals_exact_for_vertical_plane_through_target():
     assert rot > 1.0
 
 
+def test_the_pose_rule_picks_the_reflected_or_the_look_at_camera():
+    """`pose` decides each mirrored camera: reflect = the input camera reflected whole (exact for a
+    symmetric object), lookat = the paper's pose on the sphere looking at its centre. On a tilted plane
+    they differ by degrees, so a swapped rule shows; TrainConfig.mirror_pose reaches the run's mirrors."""
+    from types import SimpleNamespace
+
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.flip import mirrored_views
+
+    inputs = views_of(half_ring(elev_deg=30.0, start=1))
+    tilted = Plane(np.array([0.1, 0.0, 0.0]), np.array([1.0, 0.0, 0.5]))
+    up = np.array([0.0, 0.0, 1.0])
+    scene = SimpleNamespace(symmetry_plane=None, center=None, up=up)
+    for pose in ("reflect", "lookat"):
+        ms = make_mirror_set(inputs, tilted, pose=pose)
+        run = mirrored_views(TrainConfig(mirror_plane="auto", mirror_pose=pose), inputs, scene, tilted)
+        for v, m, r in zip(inputs, ms.views, run.views):
+            exact = exact_reflected_camera(v.camera, tilted).c2w
+            paper = initial_mirrored_camera(v.camera, tilted, ms.sphere, up).c2w
+            want, other = (exact, paper) if pose == "reflect" else (paper, exact)
+            for c2w in (m.camera.c2w, r.camera.c2w):
+                rot, trans = pose_errors(c2w, want)
+                assert rot < 1e-6 and trans < 1e-9, (pose, rot, trans)
+                assert pose_errors(c2w, other)[0] > 1.0
+        assert ms.meta["pose"] == run.meta["pose"] == pose
+
+
 def test_make_mirror_set():
     cams = half_ring(elev_deg=30.0)
     inputs = views_of(cams)
     scene_plane = Plane(np.zeros(3), np.array([0.0, 1.0, 0.0]))
-    ms = make_mirror_set(inputs, "opposite", scene_plane)
+    ms = make_mirror_set(inputs, "opposite", scene_plane, pose="lookat")
     np.testing.assert_allclose(ms.sphere.center, 0.0, atol=1e-9)
     assert ms.sphere.radius == pytest.approx(4.0)
     assert len(ms.views) == len(inputs) and len(ms.true_cameras) == len(inputs)
@@ -289,8 +316,8 @@ def test_make_mirror_set():
     # inputs are untouched; no true plane -> no truth; alpha may be missing
     np.testing.assert_array_equal(inputs[0].camera.c2w, cams[0].c2w)
     no_alpha = [View(v.camera, v.rgb, None, v.index) for v in inputs]
-    ms2 = make_mirror_set(no_alpha, "official", None)
+    ms2 = make_mirror_set(no_alpha, "official", None, pose="lookat")
     assert ms2.true_cameras is None and ms2.views[0].alpha is None
     np.testing.assert_allclose(ms2.plane.normal, [1.0, 0.0, 0.0])
     with pytest.raises(DatasetError):
-        make_mirror_set([], "opposite", None)
+        make_mirror_set([], "opposite", None, pose="lookat")

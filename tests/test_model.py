@@ -284,3 +284,29 @@ def test_inference_renders_the_whole_box_from_any_distance():
     assert float(here["opacity"].max()) > 0.05  # the untrained grid has some density
     for k in ("rgb", "opacity", "beta2"):
         assert torch.allclose(here[k], far_away[k], atol=1e-5), k
+
+
+def test_barf_coarse_to_fine_opens_the_positional_encoding_bands_with_training():
+    """BARF's window (0.1, 0.5): no band of x before 10% of training, each band k opening in turn,
+    all of them from 50% on. The model's per-step schedule drives it (a window pinned open is BARF off)."""
+    torch.manual_seed(0)
+    bbox = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    model = RadianceModel(ModelConfig(field=NerfConfig(barf_c2f=(0.1, 0.5)), n_samples=8), bbox, 0.5, 4.0, with_beta=False)
+    weights = []
+    for step in (0, 10, 30, 50, 100):
+        model.update_schedule(step, 100)
+        weights.append(model.field.barf_weights())
+    n = model.field.cfg.pe
+    assert float(weights[0].max()) == 0.0 and float(weights[1].max()) == 0.0  # before and at the window's start
+    opening = weights[2]  # half-way through the window: the first n/2 bands open, the last ones shut
+    assert float(opening[0]) == 1.0 and float(opening[-1]) == 0.0 and 0 < int((opening == 1.0).sum()) < n
+    assert torch.all(weights[3] == 1.0) and torch.all(weights[4] == 1.0)
+    # the encoding of x follows: at step 0 two points that differ only in high frequencies encode alike
+    model.update_schedule(0, 100)
+    x = torch.tensor([[0.1, 0.2, 0.3]])
+    d = torch.tensor([[0.0, 0.0, 1.0]])
+    wiggle = x + torch.tensor([[2.0 / 2 ** (n - 1), 0.0, 0.0]])  # a whole period of the top band (x in [-1, 1] -> pi x)
+    near = model.field(x, d)[0], model.field(wiggle, d)[0]
+    model.update_schedule(100, 100)
+    far = model.field(x, d)[0], model.field(wiggle, d)[0]
+    assert abs(float(near[0] - near[1])) < abs(float(far[0] - far[1]))

@@ -14,6 +14,9 @@ def test_every_mutation_edits_exactly_one_place():
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod  # dataclasses look their module up
     spec.loader.exec_module(mod)
-    assert len(mod.MUTATIONS) == 5
+    assert len(mod.MUTATIONS) == 8
     for m in mod.MUTATIONS:
         assert (ROOT / m.path).read_text().count(m.old) == 1, m.name
+        for t in m.tests:  # the tests that pin it exist (a test renamed would leave the mutant unchecked)
+            path, _, name = t.partition("::")
+            assert (ROOT / path).is_file() and (not name or f"def {name}(" in (ROOT / path).read_text()), (m.name, t)

@@ -78,7 +78,7 @@ def test_coverage_of_the_protocols_rings():
     cov = {}
     for n in range(1, 9):
         split = make_split(scene, n)
-        ms = make_mirror_set(split.inputs, "official", scene.symmetry_plane, scene.center, scene.up)
+        ms = make_mirror_set(split.inputs, "official", scene.symmetry_plane, scene.center, scene.up, pose="lookat")
         cov[n] = coverage([v.camera for v in split.tests], [v.camera for v in ms.views], ms.sphere.center)
         assert len(cov[n]["per_view_deg"]) == 8
     assert cov[1]["within_30"] == 1.0 and sum(a < 1e-6 for a in cov[1]["per_view_deg"]) == 7

@@ -67,7 +67,7 @@ def test_asymmetric_scene_breaks_the_identity(split, name):
     sp = split(name)
     views = sp.inputs[::2]
     cams = [v.camera for v in sp.inputs]
-    ms = make_mirror_set(sp.inputs, "opposite", None)
+    ms = make_mirror_set(sp.inputs, "opposite", None, pose="lookat")
     for preset in ["official", "opposite", "0,0,0;0,1,0"]:
         plane = mirror_plane(preset, cams, ms.sphere, None)
         scores = alpha_psnr_through(name, views, plane)
@@ -76,7 +76,7 @@ def test_asymmetric_scene_breaks_the_identity(split, name):
 
 def test_initial_pose_through_scene_plane_is_exact_on_the_ring(split):
     sp = split("chair", 3)
-    ms = make_mirror_set(sp.inputs, "scene", symmetry_plane("chair"))
+    ms = make_mirror_set(sp.inputs, "scene", symmetry_plane("chair"), pose="lookat")
     np.testing.assert_allclose(ms.sphere.center, 0.0, atol=1e-9)  # the look-at target of the ring
     assert ms.sphere.radius == pytest.approx(4.0, abs=1e-9)
     assert ms.true_cameras is not None
@@ -87,7 +87,7 @@ def test_initial_pose_through_scene_plane_is_exact_on_the_ring(split):
         _, alpha = render_view("chair", m.camera)
         assert psnr(alpha, m.alpha) >= 35.0
     # the 'opposite' preset is a different plane here: its initial poses are off by a clear angle
-    opp = make_mirror_set(sp.inputs, "opposite", symmetry_plane("chair"))
+    opp = make_mirror_set(sp.inputs, "opposite", symmetry_plane("chair"), pose="lookat")
     errs = [rot for rot, _ in opp.errors_to_truth()]
     assert min(errs) > 5.0, errs
 
@@ -95,7 +95,7 @@ def test_initial_pose_through_scene_plane_is_exact_on_the_ring(split):
 @pytest.mark.parametrize("config", [1, 6])
 def test_opposite_preset_maps_inputs_onto_the_test_views(split, config):
     sp = split("chair", config)
-    ms = make_mirror_set(sp.inputs, "opposite", None)
+    ms = make_mirror_set(sp.inputs, "opposite", None, pose="lookat")
     tests = np.stack([v.camera.center for v in sp.tests])
     hit = []
     for m in ms.views:

@@ -102,6 +102,33 @@ def test_events_and_outputs(chair, tmp_path):
         np.testing.assert_allclose(f["transform_matrix"], c2w, atol=1e-5)
 
 
+def test_the_training_batch_psnr_averages_the_squared_error_over_rays_and_channels(chair, tmp_path):
+    """The step event's "psnr" (the training batch's) is defined as the test PSNR is: -10 log10 of the
+    squared error averaged over the batch's rays and colour channels. Read back here from the batch the
+    step rendered and the targets of the rays it drew."""
+    tr = Trainer(TrainConfig(method="flip+u", steps=1, log_every=1, images_every=0, **TINY), scene=chair)
+    batch: dict = {}
+    render, sample = tr.model.render_rays, tr.flip.sample
+
+    def rendered(*args, **kw):
+        out = render(*args, **kw)
+        if kw.get("training"):  # the step's batch (not the final evaluation's renders)
+            batch["rgb"] = out["rgb"].detach().clone()  # (R, 3), before the step changes the field
+        return out
+
+    def drawn(*args, **kw):
+        batch["idx"] = sample(*args, **kw)  # (R,) rays of the bank
+        return batch["idx"]
+
+    tr.model.render_rays, tr.flip.sample = rendered, drawn
+    rec = Recorder()
+    tr.add_observer(rec)
+    tr.run()
+    mse = float(((batch["rgb"] - tr.training.bank.rgb[batch["idx"]]) ** 2).mean())
+    assert [e.step for e in rec.steps] == [1]
+    assert rec.steps[0].scalars["psnr"] == pytest.approx(-10 * np.log10(mse), abs=1e-4)
+
+
 def test_checkpoint_roundtrip_and_resume(chair, tmp_path):
     cfg = TrainConfig(method="flip+u", steps=20, images_every=0, out=tmp_path / "a", eval_on_stop=False, **TINY)
     tr = Trainer(cfg, scene=chair)

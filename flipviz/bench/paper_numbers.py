@@ -76,7 +76,3 @@ NERF_SYNTHETIC: dict[str, str] = {
 def paper_row(scene: str) -> str | None:
     """The paper's Table III row for a NeRF-synthetic scene folder name, else None."""
     return NERF_SYNTHETIC.get(scene.lower())
-
-
-def paper_value(metric: str, scene_row: str, method: str) -> float | None:
-    return TABLE3.get(metric, {}).get(scene_row, {}).get(method)

@@ -128,7 +128,7 @@ def exact_reflected_camera(cam: Camera, plane: Plane) -> Camera:
 
 
 def mirror_cameras_for_plane(
-    inputs: Sequence[Camera | View], plane: Plane, sphere: Sphere, up: np.ndarray = WORLD_UP, pose: str = "lookat"
+    inputs: Sequence[Camera | View], plane: Plane, sphere: Sphere, up: np.ndarray, pose: str
 ) -> list[Camera]:
     """Initial mirrored cameras ('<name>_flip') for all inputs and a plane (the app recomputes these live).
 
@@ -176,13 +176,13 @@ class MirrorSet:
 
 def make_mirror_set(
     inputs: Sequence[View], plane_preset: str | Plane, scene_plane: Plane | None = None,
-    center: np.ndarray | None = None, up: np.ndarray = WORLD_UP, pose: str = "lookat",
+    center: np.ndarray | None = None, up: np.ndarray = WORLD_UP, *, pose: str,
 ) -> MirrorSet:
     """Paper Sec. IV-A end to end: sphere through the input centres, plane, flipped views, poses.
 
     `plane_preset` is a preset name, a user string, or a Plane (e.g. one estimated from the inputs);
     `center` and `up` come from the scene (captures: from the data; orbits: None and +z); `pose`
-    is "lookat" or "reflect" (`mirror_cameras_for_plane`).
+    is "lookat" or "reflect" (`mirror_cameras_for_plane`), always said: TrainConfig.mirror_pose decides.
     """
     if len(inputs) == 0:
         raise DatasetError("no input views to mirror")

@@ -70,7 +70,3 @@ class PoseRefiner(nn.Module):
     def adjust_lr(self, optimizer: torch.optim.Optimizer, step: int) -> None:
         """lr * (lr_end / lr)^(step / total_steps)."""
         decay_lr(optimizer, step, self.total_steps, self.lr_end / self.lr)
-
-    @torch.no_grad()
-    def c2w_numpy(self) -> np.ndarray:
-        return self.forward().double().cpu().numpy()

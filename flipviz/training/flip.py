@@ -61,7 +61,7 @@ def mirrored_views(cfg: TrainConfig, inputs: list[View], scene: SceneData, estim
     plane: str | Plane = cfg.mirror_plane
     if plane == "auto":
         plane = estimated if estimated is not None else "opposite"  # no estimate for methods without mirrors
-    return make_mirror_set(inputs, plane, scene.symmetry_plane, scene.center, scene.up, cfg.mirror_pose)
+    return make_mirror_set(inputs, plane, scene.symmetry_plane, scene.center, scene.up, pose=cfg.mirror_pose)
 
 
 def mirrored_train_views(spec: MethodSpec, mirrors: MirrorSet, bbox: np.ndarray) -> list[TrainView]:

@@ -146,7 +146,7 @@ def check_run_input(cfg: TrainConfig) -> SceneData:
     scene = load_scene(cfg.scene, cfg.data, cfg.res)
     inputs = run_split(cfg, scene).inputs
     if cfg.mirror_plane != "auto":  # auto is estimated when the run starts
-        make_mirror_set(inputs, cfg.mirror_plane, scene.symmetry_plane, scene.center, scene.up)
+        make_mirror_set(inputs, cfg.mirror_plane, scene.symmetry_plane, scene.center, scene.up, pose=cfg.mirror_pose)
     return scene
 
 
