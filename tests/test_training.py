@@ -106,7 +106,7 @@ def test_the_training_batch_psnr_averages_the_squared_error_over_rays_and_channe
     """The step event's "psnr" (the training batch's) is defined as the test PSNR is: -10 log10 of the
     squared error averaged over the batch's rays and colour channels. Read back here from the batch the
     step rendered and the targets of the rays it drew."""
-    tr = Trainer(TrainConfig(method="flip+u", steps=1, log_every=1, images_every=0, **TINY), scene=chair)
+    tr = Trainer(TrainConfig(method="flip+u", steps=1, log_every=1, images_every=0, out=tmp_path / "run", **TINY), scene=chair)
     batch: dict = {}
     render, sample = tr.model.render_rays, tr.flip.sample
 
