@@ -180,7 +180,7 @@ def test_3_snap_to_a_test_view_hides_the_frustums_near_it(app, browser):
     wait_until(lambda: app.views.clients[cid].snapped is not None, 20, what="the snapped view")
     img = wait_view(browser, "3_snapped", lambda i: i.std() > 10 and drawn(i) > 0.02)
     assert img.std() > 10
-    assert "PSNR" in panel_text(browser)  # the snapped view's score
+    wait_until(lambda: "PSNR" in panel_text(browser), 60, what="the snapped view's score in the panel")
 
 
 def test_3b_click_a_pixel_of_the_snapped_view_to_probe_it(app, browser):

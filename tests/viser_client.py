@@ -115,10 +115,14 @@ class ViserTestClient:
 
     async def send_camera(self, position, look_at=(0.0, 0.0, 0.0), fov=0.9, size=(480, 640)) -> None:
         position = tuple(float(v) for v in position)
+        await self.send_pose(wxyz_look_at(np.array(position), np.array(look_at)), position, look_at, fov, size)
+
+    async def send_pose(self, wxyz, position, look_at, fov=0.9, size=(480, 640), up=(0.0, 0.0, 1.0)) -> None:
+        """The browser's report of its camera (what it sends after every move, and after the server moved it)."""
         await self.send(
-            "ViewerCameraMessage", wxyz=wxyz_look_at(np.array(position), np.array(look_at)), position=position,
+            "ViewerCameraMessage", wxyz=tuple(float(v) for v in wxyz), position=tuple(float(v) for v in position),
             fov=float(fov), near=0.01, far=100.0, image_height=int(size[0]), image_width=int(size[1]),
-            look_at=tuple(float(v) for v in look_at), up_direction=(0.0, 0.0, 1.0),
+            look_at=tuple(float(v) for v in look_at), up_direction=tuple(float(v) for v in up),
         )  # fmt: skip
 
     async def click(self, label: str) -> None:

@@ -157,6 +157,7 @@ class RenderWorker:
 
 MIN_WIDTH, MAX_WIDTH = 128, 1920  # "Max resolution": the finest pass of a view (bounded on the server)
 MIN_ASPECT, MAX_ASPECT = 0.25, 4.0  # a canvas outside these is rendered at the nearest bound
+SNAP_ARRIVAL_S = 10.0  # a browser that never reports the snapped pose in this long has left it
 
 
 @dataclass
@@ -166,6 +167,13 @@ class Snapped:
     camera: Camera
     reference: np.ndarray | None
     name: str
+    since: float = field(default_factory=time.monotonic)
+    arrived: bool = False  # the browser has reported this pose: a later, different pose means it moved away
+
+    def left(self, at_view: bool) -> bool:
+        """Whether the browser left the view. Until it reports the snapped pose, a report of another pose was
+        sent before the snap reached it (or on the way) and does not count, for up to SNAP_ARRIVAL_S."""
+        return not at_view and (self.arrived or time.monotonic() - self.since > SNAP_ARRIVAL_S)
 
 
 @dataclass
@@ -281,6 +289,8 @@ class ViewportRenderer:
         view = self.clients.get(client_id)
         if view is None:
             return
+        if view.snapped is not None and self.at(view, view.snapped.camera):
+            view.snapped.arrived = True  # the browser reports the snapped pose (the server's own set is no report)
         now = time.monotonic()
         moving_already = now - view.last_move < self.settle_s
         view.last_move, view.version = now, view.version + 1
@@ -355,7 +365,7 @@ class ViewportRenderer:
         moving = time.monotonic() - view.last_move < self.settle_s
         if moving and self.preview_shown():  # the browser draws the 3D preview meanwhile
             return self.request(client_id, delay=self.settle_s, debounce=True)
-        if view.snapped is not None and not self.at(view, view.snapped.camera):
+        if view.snapped is not None and view.snapped.left(self.at(view, view.snapped.camera)):
             view.snapped = None  # the camera was moved away (checked once still: a snap may animate)
             self.on_unsnap()
         got = self._camera(view, 0 if moving else pass_idx)
