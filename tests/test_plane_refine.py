@@ -115,12 +115,13 @@ def test_a_symmetric_object_keeps_its_exact_plane(tmp_path):
 
 
 def test_refinement_recovers_a_plane_turned_5_degrees_and_moved_5_hundredths(tmp_path):
-    """The default run (Flip+U, 100 px, 600 steps) on the chair, its plane started 5° and 0.05 off."""
+    """A shortened default run (Flip+U, 64 px, 400 steps: 25 s, where 100 px and 600 steps took 3 min on a busy
+    CI machine) on the chair, its plane started 5° and 0.05 off. It ends 0.48° / 0.002 off here."""
     start = turned(TRUE, 5.0, 0.05)
     arg = ",".join(map(str, start.point)) + ";" + ",".join(map(str, start.normal))
     tr = Trainer(TrainConfig(scene="chair", mirror_plane=arg, out=tmp_path / "run", no_rrd=True, images_every=0,
-                             checkpoint_every=0))  # fmt: skip
-    assert tr.cfg.refine_plane and (tr.cfg.res, tr.cfg.steps) == (100, 600)
+                             checkpoint_every=0, res=64, steps=400))  # fmt: skip
+    assert tr.cfg.refine_plane  # on by default
     tr.run()
     deg, off = plane_error(tr.flip.current_plane(), TRUE)
     assert deg < 1.0 and off < 0.015, (deg, off)  # from 5.00° / 0.050
