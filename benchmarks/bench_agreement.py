@@ -34,6 +34,8 @@ class Args:
     threads: int = 2
     gate: bool = False
     """Run with the agreement gate on (the default's behaviour); off: every run keeps its mirrors."""
+    estimate_after: int = 150
+    """--estimate-after of the runs (0: the plane from a separate fit, the mirrors from step 0)."""
     out: Path = ROOT / "docs/results/agreement"
 
 
@@ -53,7 +55,8 @@ def main(a: Args) -> None:
         for config in (int(c) for c in a.configs.split(",")):
             with tempfile.TemporaryDirectory() as tmp:
                 cfg = TrainConfig(scene=scene, config=config, steps=a.steps, out=Path(tmp) / "run", no_rrd=True, images_every=0,
-                                  checkpoint_every=0, unconfident_plane="drop" if a.gate else "use")  # fmt: skip
+                                  checkpoint_every=0, unconfident_plane="drop" if a.gate else "use",
+                                  disagreement_limit=TrainConfig.disagreement_limit if a.gate else float("inf"), estimate_after=a.estimate_after)  # fmt: skip
                 tr = Trainer(cfg)
                 curve = Curve()
                 tr.add_observer(curve)

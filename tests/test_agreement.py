@@ -54,7 +54,7 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
     flip = build_run(cfg, chair16).flip
     first_mirror = min(flip.ts.mirror_ids)
     gen = torch.Generator().manual_seed(0)
-    assert bool((flip.ts.bank.view[flip.sample(4000, gen)] >= first_mirror).any())  # mirrors are drawn at first
+    assert bool((flip.ts.bank.view[flip.sample(4000, gen, 0)] >= first_mirror).any())  # mirrors are drawn at first
     flip.agreement.mirror, flip.agreement.input = 3.0, 1.0
     flip.step(5)  # before the NLL starts (step 10): no verdict yet
     assert flip.dropped_at is None
@@ -64,7 +64,7 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
     flip.agreement.mirror = 2.1
     flip.step(30)
     assert flip.dropped_at == 31
-    assert not bool((flip.ts.bank.view[flip.sample(4000, gen)] >= first_mirror).any())  # only the inputs' rays now
+    assert not bool((flip.ts.bank.view[flip.sample(4000, gen, 31)] >= first_mirror).any())  # only the inputs' rays now
     plane = flip.plane.tilt.detach().clone()
     flip.plane.tilt.grad = torch.ones_like(plane)  # even a stray gradient moves nothing mirrored any more
     flip.step(31)
@@ -124,9 +124,10 @@ class Steps(Observer):
 
 def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
     """Flip+U with the plane x = 0 (the chair's true plane; it maps the mug's handle to where it is not),
-    configuration 4, 32 px, at the default limit."""
+    configuration 4, 32 px, at the limit measured for mirrors that train from step 0 (2.0; the default,
+    3.25, is for mirrors that join after the plane is estimated from the run's field)."""
     cfg = TrainConfig(scene=scene, config=4, res=32, steps=300, batch_rays=512, mirror_plane="official", no_rrd=True,
-                      images_every=0, checkpoint_every=0, eval_on_stop=False, out=tmp_path / scene)  # fmt: skip
+                      images_every=0, checkpoint_every=0, eval_on_stop=False, out=tmp_path / scene, disagreement_limit=2.0)  # fmt: skip
     tr = Trainer(cfg)
     steps = Steps()
     tr.add_observer(steps)

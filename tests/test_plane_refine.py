@@ -19,6 +19,7 @@ from flipviz.model import GridConfig, ModelConfig, RadianceModel
 from flipviz.model.fit import fit
 from flipviz.training.config import TrainConfig
 from flipviz.training.flip import MirrorPlane
+from flipviz.training.setup import build_run
 from flipviz.training.trainer import Trainer
 
 TRUE = Plane(np.zeros(3), np.array([1.0, 0.0, 0.0]))  # the chair's
@@ -142,3 +143,38 @@ def test_both_fields_move_the_plane_and_a_resumed_run_keeps_it(tmp_path, field):
     assert plane_error(again.flip.current_plane(), moved) == pytest.approx((0.0, 0.0), abs=1e-6)
     fixed = Trainer(TrainConfig(**kw, out=tmp_path / "c", refine_plane=False))
     assert "refined" not in fixed.run()["plane"] and fixed.flip.current_plane() is None
+
+
+def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(tmp_path):
+    """--mirror-plane auto (issue 20 item 3): the run trains its inputs alone for --estimate-after steps (at most a quarter),
+    estimates the plane from that field (no separate fit), and the mirrored views join at that step, with
+    their schedules counted from it; a resumed run reads the estimate back and keeps the same join."""
+    import json
+
+    kw = dict(scene="chair", res=24, steps=160, batch_rays=256, n_samples=24, grid_res=(16,), images_every=0, no_rrd=True,
+              disagreement_limit=float("inf"))  # fmt: skip
+    tr = Trainer(TrainConfig(**kw, out=tmp_path / "a", checkpoint_every=80))
+    K = 160 // 4  # a quarter of this short run (150 steps in a long one)
+    assert tr.cfg.mirror_plane == "auto" and tr.cfg.estimate_after == 150
+    assert tr.step == K and tr.plane_estimate.meta["field_steps"] == K and "fit_steps" not in tr.plane_estimate.meta
+    assert tr.training.mirror_ids and tr.flip.start == K and tr.spec.mirrors  # kept (--unconfident-plane use)
+    assert tr.flip.objective.nll_start == K + int(0.2 * (160 - K)) and tr.flip.ba_start == K + int(0.5 * (160 - K))
+    first_mirror = min(tr.training.mirror_ids)
+    gen = torch.Generator().manual_seed(0)
+    assert not bool((tr.training.bank.view[tr.flip.sample(4000, gen, K - 1)] >= first_mirror).any())  # before the join
+    assert bool((tr.training.bank.view[tr.flip.sample(4000, gen, K)] >= first_mirror).any())  # from it on
+    plane = tr.flip.current_plane()
+    assert plane_error(plane, tr.plane_estimate.plane) == pytest.approx((0.0, 0.0), abs=1e-6)  # refinement starts at it
+    m = tr.run()
+    assert m["status"] == "finished" and m["plane"]["estimate_seconds"] == tr.plane_estimate.seconds
+    saved = json.loads((tmp_path / "a" / "plane.json").read_text())
+    assert saved["meta"]["field_steps"] == K
+    again = Trainer(TrainConfig(**kw, out=tmp_path / "b", resume=tmp_path / "a"))  # read back, not estimated again
+    assert again.plane_estimate.to_dict() == saved, (again.plane_estimate.to_dict(), saved)
+    assert again.flip.start == K and again.step == tr.step
+    again.close()
+    short = Trainer(TrainConfig(**{**kw, "steps": 8}, out=tmp_path / "d"))  # 2 steps show no surface: a separate fit
+    assert short.step == 2 and short.flip.start == 2 and short.plane_estimate.meta["fit_steps"] > 0
+    short.close()
+    fitted = build_run(TrainConfig(**kw, out=tmp_path / "c", estimate_after=0), tr.scene, tmp_path / "a" / "plane.json")
+    assert fitted.warm_up == 0 and fitted.flip.start == 0  # --estimate-after 0 (the estimate given): mirrors from step 0

@@ -118,17 +118,30 @@ class TrainConfig:
     plane_file: Path | None = None
     """With --mirror-plane auto: read the estimate from this plane.json when it exists (another run's on
     the same inputs, e.g. Flip beside Flip+U), else estimate it and write it there as well."""
+    estimate_after: int = 150
+    """With --mirror-plane auto and the grid field: the steps the run trains on its inputs alone (at most a
+    quarter of --steps) before it estimates the plane from its own field; the mirrored views join then,
+    and their schedules (the NLL's warm-up, BA's and the plane's starts) count from there. 0, or --field
+    nerf (an MLP shows little surface that early): a separate short fit estimates the plane before
+    training (10-12 s on 2 cores; the search from the run's field takes 1.5-3 s). 150 steps gave estimates
+    as confident as the separate fit's on the chair's configuration 1 (0.28-0.30 over 5 seeds at 600
+    steps, 0.31-0.35 over 3 at 3000), and 100 steps less so (0.18-0.20): chosen on the estimate's own
+    score, never on a test view or the true plane."""
     unconfident_plane: Literal["drop", "use"] = "use"
     """With --mirror-plane auto, when the estimate is not confident (geometry/symmetry.py: CONFIDENT): use
     (train with its mirrors, as with a confident one: the agreement gate, --disagreement-limit, drops them
     mid-training if they disagree with the inputs, and --after-drop restart then trains the inputs afresh)
     or drop (train on the inputs only from the start, as B/L does). docs/results/agreement."""
-    disagreement_limit: float = 2.0
+    disagreement_limit: float = 3.25
     """Flip methods: once the NLL is on, the mirrored views are dropped (training goes on with the inputs)
     when their squared error on the object exceeds this many times the inputs' (training/flip.py:
     Agreement); inf: never. Tuned on the training batches of the built-ins chair, truck, mug and lamp,
-    configurations 1 and 4 (benchmarks/bench_agreement.py): the symmetric runs never went above 1.48,
-    the mug's passed 2 by step 160-240 of 600 and the lamp's configuration 4 by step 260."""
+    configurations 1 and 4 (benchmarks/bench_agreement.py, docs/results/agreement/live), with the mirrors
+    joining after --estimate-after 150 of 600 steps: from the NLL's start on, the symmetric chair and truck with a plane
+    within 1° of theirs never went above 2.41; the mug (no mirror symmetry) and the truck's configuration 4
+    (its estimate 88° off) were at 4.37 or more. 3.25 is the geometric mean of the two. With the mirrors
+    from step 0 (the estimate from a separate fit), the symmetric runs stayed under 1.48 and the mug
+    passed 2 at steps 160-240 (the limit was 2.0 then)."""
     after_drop: Literal["restart", "continue"] = "restart"
     """When the agreement gate drops the mirrors: restart (a fresh field trains on the inputs alone for
     the full --steps, so the run ends as B/L would, at the cost of the steps already taken; what the
@@ -231,7 +244,7 @@ class TrainConfig:
             "config": (1, 8), "res": (8, 1024), "steps": (1, 10_000_000), "batch_rays": (1, 1_000_000),
             "n_samples": (2, 1024), "log_every": (1, 10_000_000), "images_every": (0, 10_000_000),
             "checkpoint_every": (0, 10_000_000), "uncertainty_start": (0.0, 1.0), "density_weight": (0.0, 1e6),
-            "plane_lr": (0.0, 1.0), "plane_start": (0.0, 1.0), "seed": (0, 2**63 - 1), "disagreement_limit": (1.0, float("inf")),
+            "plane_lr": (0.0, 1.0), "plane_start": (0.0, 1.0), "estimate_after": (0, 10_000_000), "seed": (0, 2**63 - 1), "disagreement_limit": (1.0, float("inf")),
         }  # fmt: skip
         for name, (lo, hi) in bounds.items():
             if not lo <= getattr(self, name) <= hi:  # of its type already (above)

@@ -13,7 +13,9 @@ IV-A  Mirrored views (`mirrored_views`). Each input image is flipped left-right 
       for an object symmetric about that plane, on any trajectory), or by the paper's rule
       (`lookat`: reflect the centre, back onto the least-squares sphere of the input centres, look
       at its centre). The plane is `--mirror-plane` (auto: estimated from the inputs alone,
-      training/plane_estimate.py). geometry/mirror.py computes the poses.
+      training/plane_estimate.py: the run trains its inputs alone for --estimate-after steps,
+      the plane is estimated from that field, and the mirrors join at that step, `Flip.start`).
+      geometry/mirror.py computes the poses.
       flipviz adds: the plane is a parameter of training (`MirrorPlane`, `--refine-plane`). It has
       3 degrees of freedom, every mirrored camera follows it (c2w(P) = S_P S_P0 c2w_init, a rigid
       motion), and the photometric loss of the mirrored rays moves it. Per-camera BA can only pull
@@ -140,10 +142,11 @@ def pose_refiner(ts: TrainingSet, steps: int, device: torch.device | str) -> Pos
 
 
 # ---------------------------------------------------------------------------------- IV-C: loss
-def objective(cfg: TrainConfig, beta_min: float) -> Objective:
-    """MSE for the first `uncertainty_start` of the steps, then the NLL on uncertain rays (the density
-    term, with --density-on all, on every ray)."""
-    return Objective(beta_min, cfg.density_weight, int(cfg.uncertainty_start * cfg.steps), cfg.nll_channels, cfg.density_on)
+def objective(cfg: TrainConfig, beta_min: float, start: int = 0) -> Objective:
+    """MSE for the first `uncertainty_start` of the steps from `start` (the step the mirrors join), then
+    the NLL on uncertain rays (the density term, with --density-on all, on every ray)."""
+    nll_start = start + int(cfg.uncertainty_start * (cfg.steps - start))
+    return Objective(beta_min, cfg.density_weight, nll_start, cfg.nll_channels, cfg.density_on)
 
 
 # ---------------------------------------------------------------------------------- agreement
@@ -183,22 +186,28 @@ class Agreement:
 # ---------------------------------------------------------------------------------- the hooks
 class Flip:
     """Just Flip around a NeRF step: the poses of a step, its loss, and the parameters it moves
-    (BA's xi and the plane), with their own Adam and schedules. Nothing moves without mirrors."""
+    (BA's xi and the plane), with their own Adam and schedules. Nothing moves without mirrors.
+
+    `start`: the step the mirrored views join (with --mirror-plane auto, once the plane is estimated
+    from the run's own field: --estimate-after); before it only the inputs' rays train, and the mirrors'
+    schedules (the NLL's warm-up, BA, the plane) count their fractions over the steps from it."""
 
     def __init__(
         self, cfg: TrainConfig, ts: TrainingSet, plane: Plane | None, beta_min: float, device: torch.device | str,
+        start: int = 0,
     ) -> None:  # fmt: skip
-        self.ts, self.steps = ts, cfg.steps
-        self.refiner = pose_refiner(ts, cfg.steps, device)
-        self.objective = objective(cfg, beta_min)
+        self.ts, self.steps, self.start = ts, cfg.steps, start
+        span = max(1, cfg.steps - start)  # the steps the mirrors train
+        self.refiner = pose_refiner(ts, span, device)
+        self.objective = objective(cfg, beta_min, start)
         self.mirror_ids = torch.as_tensor(ts.mirror_ids, dtype=torch.long, device=device)
         is_mirror = torch.zeros(len(ts.views), dtype=torch.bool, device=device)
         self.agreement = Agreement(is_mirror.index_fill(0, self.mirror_ids, True)) if ts.mirror_ids else None
         refine_plane = cfg.refine_plane and plane is not None and bool(ts.mirror_ids)
         self.plane = MirrorPlane(plane, device) if refine_plane else None
-        self.plane_start = int(cfg.plane_start * cfg.steps)
+        self.plane_start = start + int(cfg.plane_start * span)
         ba_start = cfg.ba_start if cfg.ba_start is not None else (BA_START_WITH_PLANE if self.plane is not None else 0.0)
-        self.ba_start = int(ba_start * cfg.steps)  # a refined plane moves all the mirrors first
+        self.ba_start = start + int(ba_start * span)  # a refined plane moves all the mirrors first
         self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
         self.opt_plane = None
         if self.plane is not None:
@@ -208,10 +217,11 @@ class Flip:
         self.dropped_at: int | None = None  # the step at which the mirrors stopped being trained
         self.kept_rays = int((ts.bank.view < min(ts.mirror_ids)).sum()) if ts.mirror_ids else len(ts.bank)
 
-    def sample(self, n: int, generator: torch.Generator) -> Tensor:
-        """(n,) the rays of a step: any training view's, or, once the mirrors are dropped, the inputs'
-        (the bank holds the inputs' rays first, then the mirrors')."""
-        return self.ts.bank.sample(n, generator, self.kept_rays if self.dropped_at is not None else None)
+    def sample(self, n: int, generator: torch.Generator, step: int) -> Tensor:
+        """(n,) the rays of step `step`: any training view's, or, before the mirrors join and once they
+        are dropped, the inputs' (the bank holds the inputs' rays first, then the mirrors')."""
+        inputs_only = self.dropped_at is not None or step < self.start
+        return self.ts.bank.sample(n, generator, self.kept_rays if inputs_only else None)
 
     def poses(self) -> Tensor:
         """(V, 4, 4) the current poses: inputs fixed; mirrors S_P S_P0 c2w_init Exp(xi) (IV-A, IV-B)."""
@@ -237,6 +247,8 @@ class Flip:
         """Move the poses (BA) and, after its warm-up, the plane; `step`: the step just taken (0-based).
         Once the NLL is on, mirrors that disagree with the inputs are dropped (`Agreement`): True on
         the step they are (the trainer then restarts the field, or trains it on: --after-drop)."""
+        if step < self.start:
+            return False  # the mirrors have not joined: nothing of theirs moves
         if self.agreement is not None and self.dropped_at is None and step >= self.gate_start:
             if self.agreement.ratio > self.disagreement_limit:
                 self.dropped_at = step + 1
@@ -247,7 +259,7 @@ class Flip:
         if self.dropped_at is not None:
             return False  # nothing mirrored is trained: the poses and the plane stay where they were
         if self.opt_pose is not None and step >= self.ba_start:
-            self.refiner.adjust_lr(self.opt_pose, step)  # type: ignore[union-attr]
+            self.refiner.adjust_lr(self.opt_pose, step - self.start)  # type: ignore[union-attr]
             self.opt_pose.step()
         if self.opt_plane is not None and step >= self.plane_start:
             decay_lr(self.opt_plane, step - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)

@@ -1,9 +1,11 @@
 """`--mirror-plane auto`: the object's mirror plane estimated from the input views alone.
 
-1. a short B/L fit of the fast grid field on the inputs (no mirrors, no uncertainty);
-2. the surface the inputs saw (the fit's depth maps, back-projected) and, on a VOLUME_RES^3 lattice
+1. a field fitted to the inputs alone: the run's own, after its first --estimate-after steps
+   (trainer.py: the mirrors join then), or, with --estimate-after 0, a short separate B/L fit of the
+   fast grid field (`estimate_plane`; the app's *Estimate plane* too);
+2. the surface the inputs saw (the field's depth maps, back-projected) and, on a VOLUME_RES^3 lattice
    over the scene box, which voxels hold it and which the inputs saw: in front of (or within two
-   voxels behind) the fit's depth along an input ray, every voxel along a ray that hits nothing;
+   voxels behind) the field's depth along an input ray, every voxel along a ray that hits nothing;
 3. `geometry.symmetry.search_plane`: the reflection that maps the seen surface onto itself.
 
 Nothing here looks at the test views or at the scene's true plane. The settings below (and the
@@ -11,6 +13,8 @@ scoring constants of geometry/symmetry.py) were tuned on the untouched built-in 
 truck, mug, lamp; configurations 1 and 4) and measured on the turned ones, the other
 configurations and lego by benchmarks/bench_plane.py. The fit (500 steps of 512 rays, 24 samples)
 took 8-12 s on the 2-core machine; 200 steps of 1024 rays left chair and lamp indistinguishable.
+From the run's own field, steps 150 of 600 of the chair's configuration 1 (5 seeds): the search
+took 1.5-2.8 s, and the planes were 0.27-1.14° off (the separate fit's: 0.29-1.36°, 10-12 s).
 """
 
 from __future__ import annotations
@@ -69,8 +73,9 @@ def symmetry_volume(model: RadianceModel, inputs: list[View], box: np.ndarray, r
 
 
 def estimate_plane(inputs: list[View], scene: SceneData, device: str = "cpu", seed: int = 0) -> PlaneEstimate:
-    """The mirror plane of the object the `inputs` see, with its confidence (module docstring). The
-    run's random state is left as it was: a Flip run that drops its mirrors then trains exactly B/L."""
+    """The mirror plane of the object the `inputs` see, with its confidence (module docstring), from a
+    separate short fit. The run's random state is left as it was: a Flip run that drops its mirrors
+    then trains exactly B/L."""
     t0 = time.perf_counter()
     with torch.random.fork_rng(devices=[] if str(device) == "cpu" else None):
         torch.manual_seed(seed)
@@ -78,11 +83,31 @@ def estimate_plane(inputs: list[View], scene: SceneData, device: str = "cpu", se
         model = RadianceModel(ModelConfig(field=field, n_samples=FIT_SAMPLES), scene.bbox, scene.near, scene.far, with_beta=False, device=device)
         fit(model, inputs, FIT_STEPS, batch_rays=FIT_BATCH, seed=seed)
         t_fit = time.perf_counter() - t0
-        est = search_plane(symmetry_volume(model, inputs, scene.bbox), scene.up, scene.up_known, seed)
+        est = estimate_from_field(model, inputs, scene, seed)
     est.seconds = time.perf_counter() - t0
-    est.meta.update({"fit_seconds": t_fit, "fit_steps": FIT_STEPS, "up_known": bool(scene.up_known)})
+    est.meta.update({"fit_seconds": t_fit, "fit_steps": FIT_STEPS})
+    return est
+
+
+def estimate_from_field(model: RadianceModel, inputs: list[View], scene: SceneData, seed: int = 0, step: int = 0) -> PlaneEstimate:
+    """The mirror plane of a field fitted to the `inputs` alone (steps 2-3 of the module docstring);
+    `step`: how many steps the field trained, for the record."""
+    t0 = time.perf_counter()
+    est = search_plane(symmetry_volume(model, inputs, scene.bbox), scene.up, scene.up_known, seed)
+    est.seconds = time.perf_counter() - t0
+    est.meta.update({"field_steps": step, "up_known": bool(scene.up_known)})
     log.info("%s (%.1f s)", est.summary(), est.seconds)
     return est
+
+
+def read_estimate(path: Path | None) -> PlaneEstimate | None:
+    """The estimate written to `path` (plane.json, --plane-file), or None when there is none."""
+    if path is None or not path.is_file():
+        return None
+    try:
+        return PlaneEstimate.from_dict(json.loads(path.read_text()))
+    except (ValueError, KeyError, TypeError) as e:
+        raise UserError(f"cannot read the estimated plane {path} ({type(e).__name__}); delete it to estimate again") from None
 
 
 def estimate_or_read(
@@ -92,12 +117,13 @@ def estimate_or_read(
     the mirrored poses the checkpoint refined stay the same) or from `shared` (--plane-file), else
     estimated now (and written to `shared`)."""
     for path in (saved, shared):
-        if path is not None and path.is_file():
-            try:
-                return PlaneEstimate.from_dict(json.loads(path.read_text()))
-            except (ValueError, KeyError, TypeError) as e:
-                raise UserError(f"cannot read the estimated plane {path} ({type(e).__name__}); delete it to estimate again") from None
-    est = estimate_plane(inputs, scene, device, seed)
+        if (est := read_estimate(path)) is not None:
+            return est
+    return shared_estimate(estimate_plane(inputs, scene, device, seed), shared)
+
+
+def shared_estimate(est: PlaneEstimate, shared: Path | None) -> PlaneEstimate:
+    """A new estimate, said when it is doubted, and written to `shared` (--plane-file) for other runs."""
     if not est.confident:
         log.warning("%s", est.summary())
     if shared is not None:

@@ -2,8 +2,10 @@
 
     split      = the protocol's inputs / unobserved tests / Upper views     (data/protocol.py),
                  or a capture's chosen inputs and held-out frames            (data/selection.py)
-    estimate   = with --mirror-plane auto, the plane estimated from inputs  (plane_estimate.py);
-                 not confident: no mirrored view is trained on (--unconfident-plane);
+    estimate   = with --mirror-plane auto, the plane estimated from inputs  (plane_estimate.py):
+                 from the run's own field after its input-only steps (the trainer builds the run
+                 again then, keeping the field), or from a separate fit (--estimate-after 0);
+                 not confident: no mirrored view is trained on (--unconfident-plane drop);
                  mirrors that are trained and disagree with the inputs are dropped later
                  (flip.py: the agreement gate)
     mirrors    = flipped inputs with their initial poses                    (flip.py, step 1)
@@ -31,7 +33,7 @@ from flipviz.model import GridConfig, ModelConfig, NerfConfig, RadianceModel
 from flipviz.training import flip
 from flipviz.training.config import PAPER_LR_DECAY, TrainConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
-from flipviz.training.plane_estimate import estimate_or_read
+from flipviz.training.plane_estimate import estimate_or_read, read_estimate
 
 log = logging.getLogger("flipviz.training")
 
@@ -43,6 +45,7 @@ class RunSetup:
     split: Split
     mirrors: MirrorSet  # built for every method, so that the app can show the would-be mirrors
     estimate: PlaneEstimate | None  # --mirror-plane auto (Flip methods)
+    warm_up: int  # steps to train on the inputs alone before the plane is estimated from the field (else 0)
     training: TrainingSet
     model: RadianceModel
     flip: flip.Flip
@@ -79,18 +82,38 @@ def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
     return select_split(scene, cfg.inputs)
 
 
-def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = None) -> RunSetup:
-    """Everything a run trains with; `saved_estimate`: the plane.json of a run being resumed."""
+def mirrors_join_at(cfg: TrainConfig) -> int:
+    """The step the mirrored views join: with --mirror-plane auto, after --estimate-after steps (at most a
+    quarter of the run) on the grid field; else 0."""
+    if cfg.mirror_plane != "auto" or cfg.field == "nerf":
+        return 0
+    return min(cfg.estimate_after, cfg.steps // 4)
+
+
+def build_run(
+    cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = None, estimate: PlaneEstimate | None = None,
+    model: RadianceModel | None = None,
+) -> RunSetup:  # fmt: skip
+    """Everything a run trains with. `saved_estimate`: the plane.json of a run being resumed; `estimate`:
+    auto's plane, estimated from the run's own `model` after its input-only steps (that field trains on)."""
     check_image_size(*scene.resolution, f"the images of {scene.source or scene.name}")
     device = torch.device(cfg.device)
     spec = method_spec(cfg)
     split = run_split(cfg, scene)
-    estimate = None
-    if cfg.mirror_plane == "auto" and spec.mirrors:
-        estimate = estimate_or_read(split.inputs, scene, cfg.device, cfg.seed, saved_estimate, cfg.plane_file)
+    warm_up, with_beta = 0, spec.uses_beta
+    if cfg.mirror_plane == "auto" and spec.mirrors and estimate is None:
+        if mirrors_join_at(cfg) > 0:  # read back (a resumed run's), else estimated from this run's field later
+            estimate = read_estimate(saved_estimate)
+            warm_up = mirrors_join_at(cfg) if estimate is None else 0
+        else:
+            estimate = estimate_or_read(split.inputs, scene, cfg.device, cfg.seed, saved_estimate, cfg.plane_file)
+    if warm_up:  # the inputs alone until the estimate; the field has what the run needs after it
+        spec = spec.without_mirrors()
+    elif estimate is not None:
         if not estimate.confident and cfg.unconfident_plane == "drop":
             log.warning("training without the mirrored views: the plane is not confident (--unconfident-plane use keeps them)")
             spec = spec.without_mirrors()
+            with_beta = spec.uses_beta
         elif not estimate.confident:
             log.warning("the plane is not confident: its mirrored views train while they agree with the inputs "
                         "(--disagreement-limit; --unconfident-plane drop trains without them)")  # fmt: skip
@@ -98,6 +121,7 @@ def build_run(cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = 
     training = build_training_set(
         spec, split.inputs, flip.mirrored_train_views(spec, mirrors, scene.bbox), split.uppers, device=device
     )
-    model = fresh_model(cfg, scene, spec.uses_beta)
-    hooks = flip.Flip(cfg, training, mirrors.plane if spec.mirrors else None, model.cfg.beta_min, device)
-    return RunSetup(scene, spec, split, mirrors, estimate, training, model, hooks)
+    model = model if model is not None else fresh_model(cfg, scene, with_beta)
+    plane = mirrors.plane if spec.mirrors else None
+    hooks = flip.Flip(cfg, training, plane, model.cfg.beta_min, device, mirrors_join_at(cfg) if plane is not None else 0)
+    return RunSetup(scene, spec, split, mirrors, estimate, warm_up, training, model, hooks)

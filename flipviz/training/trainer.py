@@ -49,8 +49,8 @@ from flipviz.training.events import (
     SetupEvent,
     StepEvent,
 )
-from flipviz.training.plane_estimate import estimate_plane
-from flipviz.training.setup import build_run, fresh_model
+from flipviz.training.plane_estimate import estimate_from_field, estimate_plane, read_estimate, shared_estimate
+from flipviz.training.setup import RunSetup, build_run, fresh_model
 
 log = logging.getLogger("flipviz.training")
 
@@ -102,15 +102,15 @@ class Trainer:
         resumed = Path(cfg.resume) if cfg.resume is not None else None  # a checkpoint or its run folder
         saved = (resumed if resumed.is_dir() else resumed.parent) / PLANE_FILE if resumed is not None else None
         rs = build_run(cfg, self.scene, saved)
-        self.spec, self.split, self.mirrors, self.training = rs.spec, rs.split, rs.mirrors, rs.training
-        self.plane_estimate = rs.estimate
-        self.model, self.flip = rs.model, rs.flip
+        self._adopt(rs)
         self.opt_field = self.model.make_optimizer()
-        if self.plane_estimate is not None and not self.read_only:
-            artifacts.write_plane(self.run_dir, self.plane_estimate)
         self.step = 0
         self.field_start = 0  # the step the field began at: 0, or the agreement gate's drop (--after-drop restart)
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
+        if rs.warm_up and not self.read_only:
+            self._estimate_after(rs.warm_up)
+        if self.plane_estimate is not None and not self.read_only:
+            artifacts.write_plane(self.run_dir, self.plane_estimate)
         self._observers: list[Observer] = []
         self._lock = threading.RLock()  # one lock for a training step and for render()
         self._running = threading.Event()
@@ -118,6 +118,38 @@ class Trainer:
         self._stop = threading.Event()
         if cfg.resume is not None:
             self._load(cfg.resume)
+
+    def _adopt(self, rs: RunSetup) -> None:
+        self.spec, self.split, self.mirrors, self.training = rs.spec, rs.split, rs.mirrors, rs.training
+        self.plane_estimate, self.model, self.flip = rs.estimate, rs.model, rs.flip
+
+    def _estimate_after(self, steps: int) -> None:
+        """--mirror-plane auto: train the run's field on the inputs alone for `steps` steps, estimate the
+        plane from it (plane_estimate.py; or read --plane-file, another run's) and let the mirrored
+        views join: the run is built again around the same field and optimiser. A doubted plane under
+        --unconfident-plane drop starts the run afresh as B/L instead (the bench then takes B/L's result)."""
+        cfg = self.cfg
+        t0 = time.perf_counter()
+        while self.step < steps:
+            self._train_step()
+        self.train_seconds += time.perf_counter() - t0
+        shared = Path(cfg.plane_file) if cfg.plane_file is not None else None
+        est = read_estimate(shared)
+        if est is None:
+            try:
+                est = estimate_from_field(self.model, self.split.inputs, self.scene, cfg.seed, steps)
+            except ValueError as e:  # too few steps to show a surface yet
+                log.warning("%s after %d steps; estimating it with a separate fit instead", e, steps)
+                est = estimate_plane(self.split.inputs, self.scene, cfg.device, cfg.seed)
+            est = shared_estimate(est, shared)
+        if not est.confident and cfg.unconfident_plane == "drop":
+            torch.manual_seed(cfg.seed)  # as B/L's run is seeded
+            self._gen = torch.Generator().manual_seed(cfg.seed)
+            self._adopt(build_run(cfg, self.scene, estimate=est))
+            self.opt_field = self.model.make_optimizer()
+            self.step, self.train_seconds = 0, 0.0
+            return
+        self._adopt(build_run(cfg, self.scene, estimate=est, model=self.model))
 
     def _take_over_folder(self) -> None:
         """Holding the run folder's lock: remove the temporary files of killed writes, and refuse to
@@ -197,7 +229,7 @@ class Trainer:
             if self.model.update_schedule(field_step, cfg.steps):  # grids upsampled: new parameters
                 self.opt_field = self.model.make_optimizer()
         self.model.adjust_lr(self.opt_field, field_step, cfg.steps)
-        idx = self.flip.sample(cfg.batch_rays, self._gen)  # (R,): without the mirrors' once they are dropped
+        idx = self.flip.sample(cfg.batch_rays, self._gen, self.step)  # (R,): the inputs' alone before the mirrors join, after a drop
         view = bank.view[idx]
         o, d = rays_from_c2w(self.current_poses()[view], bank.dirs_cam[idx])  # (R, 3) each
         out = self.model.render_rays(o, d, training=True)
