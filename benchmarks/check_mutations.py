@@ -1,4 +1,4 @@
-"""Break the core on purpose, eight ways, and check that the test suite notices each one.
+"""Break the core on purpose, nine ways, and check that the test suite notices each one.
 
     python benchmarks/check_mutations.py             # every mutation, against the tests that pin it
     python benchmarks/check_mutations.py --tests tests   # against the whole suite (slower)
@@ -68,6 +68,11 @@ MUTATIONS = (
     Mutation(
         "(h) the reflect and lookat pose rules swapped", "flipviz/geometry/mirror.py",
         'if pose == "reflect":', 'if pose == "lookat":', ("tests/test_geometry.py",),
+    ),
+    Mutation(
+        "(i) the mirrored rays drawn before the mirrors join", "flipviz/training/flip.py",
+        "inputs_only = self.dropped_at is not None or step < self.start", "inputs_only = self.dropped_at is not None",
+        ("tests/test_plane_refine.py::test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join",),
     ),
 )  # fmt: skip
 
