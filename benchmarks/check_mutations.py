@@ -40,7 +40,7 @@ MUTATIONS = (
     ),
     Mutation(
         "(b) the MSE warm-up is removed", "flipviz/training/flip.py",
-        "int(cfg.uncertainty_start * cfg.steps)", "0",
+        "nll_start = start + int(cfg.uncertainty_start * (cfg.steps - start))", "nll_start = start",
     ),
     Mutation(
         "(c) the 2 beta_min^2 / 3 rescale is dropped", "flipviz/model/objective.py",

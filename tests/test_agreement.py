@@ -50,7 +50,8 @@ def chair16():
 
 
 def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(tmp_path, chair16):
-    cfg = TrainConfig(scene="chair", res=16, steps=100, mirror_plane="scene", uncertainty_start=0.1, out=tmp_path / "run")
+    cfg = TrainConfig(scene="chair", res=16, steps=100, mirror_plane="scene", uncertainty_start=0.1, out=tmp_path / "run",
+                      disagreement_limit=2.0)  # fmt: skip
     flip = build_run(cfg, chair16).flip
     first_mirror = min(flip.ts.mirror_ids)
     gen = torch.Generator().manual_seed(0)
