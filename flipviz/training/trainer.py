@@ -142,14 +142,11 @@ class Trainer:
                 log.warning("%s after %d steps; estimating it with a separate fit instead", e, steps)
                 est = estimate_plane(self.split.inputs, self.scene, cfg.device, cfg.seed)
             est = shared_estimate(est, shared)
-        if not est.confident and cfg.unconfident_plane == "drop":
-            torch.manual_seed(cfg.seed)  # as B/L's run is seeded
-            self._gen = torch.Generator().manual_seed(cfg.seed)
-            self._adopt(build_run(cfg, self.scene, estimate=est))
-            self.opt_field = self.model.make_optimizer()
-            self.step, self.train_seconds = 0, 0.0
-            return
         self._adopt(build_run(cfg, self.scene, estimate=est, model=self.model))
+        if not self.spec.mirrors:  # dropped (--unconfident-plane drop): a fresh field and sampler, seeded as B/L's
+            self._new_field(0)
+            self._gen = torch.Generator().manual_seed(cfg.seed)
+            self.step, self.train_seconds = 0, 0.0
 
     def _take_over_folder(self) -> None:
         """Holding the run folder's lock: remove the temporary files of killed writes, and refuse to
