@@ -20,12 +20,12 @@ import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Callable, Literal
+from typing import Annotated, Callable, Literal, Union
 
 import tyro
 
 from flipviz.errors import Interrupted, UserError
-from flipviz.training.config import TrainConfig
+from flipviz.training.config import TrainConfig, preset_config
 
 
 @dataclass
@@ -131,23 +131,36 @@ def _export(cmd: ExportScene) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     try:  # the first imports (torch, viser, rerun) take seconds: a Ctrl-C there is one line too
-        from flipviz.bench import BenchConfig
-        from flipviz.viz.html_report import ReportConfig
-        from flipviz.viz.rerun_compare import CompareConfig
-        from flipviz.viz.video import VideoConfig
-        from flipviz.viz.viser_app import AppConfig
+        cmd = parse_command(argv)
     except KeyboardInterrupt:
         print("flipviz: interrupted (SIGINT)", file=sys.stderr)
         return 128 + signal.SIGINT
-
-    commands = {"train": TrainConfig, "app": AppConfig, "bench": BenchConfig, "export-scene": ExportScene,
-                "video": VideoConfig, "compare": CompareConfig, "report": ReportConfig}  # fmt: skip
-    try:
-        cmd = _parsed(lambda: tyro.extras.subcommand_cli_from_dict(commands, args=argv, description=__doc__))
     except UserError as e:
         print(f"flipviz: error: {e}", file=sys.stderr)
         return 2
     return guarded(lambda: _dispatch(cmd))
+
+
+def parse_command(argv: list[str] | None) -> object:
+    """The subcommand's config from `argv`. A `--preset` (train, app, bench) is the defaults of a
+    second parse, so that every option you pass wins over the preset's, whatever its value."""
+    from flipviz.bench import BenchConfig
+    from flipviz.viz.html_report import ReportConfig
+    from flipviz.viz.rerun_compare import CompareConfig
+    from flipviz.viz.video import VideoConfig
+    from flipviz.viz.viser_app import AppConfig
+
+    commands = {"train": TrainConfig, "app": AppConfig, "bench": BenchConfig, "export-scene": ExportScene,
+                "video": VideoConfig, "compare": CompareConfig, "report": ReportConfig}  # fmt: skip
+
+    def parse(defaults: dict[type, object]) -> object:
+        union = tuple(Annotated[cls, tyro.conf.subcommand(name, default=defaults.get(cls, tyro.MISSING_NONPROP))] for name, cls in commands.items())
+        return _parsed(lambda: tyro.cli(Union[union], args=argv, description=__doc__))
+
+    cmd = parse({})
+    if getattr(cmd, "preset", "fast") != "fast":
+        cmd = parse({type(cmd): preset_config(cmd.preset, type(cmd))})
+    return cmd
 
 
 def _parsed(parse: Callable[[], object]) -> object:

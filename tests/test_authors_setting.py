@@ -13,7 +13,7 @@ import torch
 from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, RadianceModel
 from flipviz.model.renderer import render_rays
 from flipviz.training import flip
-from flipviz.training.config import AUTHORS_PRESET, TrainConfig
+from flipviz.training.config import AUTHORS_PRESET, TrainConfig, preset_config
 
 B_MIN, W = 0.1, 0.01
 BOX = np.array([[-1.0] * 3, [1.0] * 3])
@@ -115,12 +115,12 @@ def test_beta_from_position_does_not_see_the_view_direction(field):
 
 
 def test_preset_authors_sets_each_choice_and_a_given_value_wins():
-    cfg = TrainConfig(preset="authors")
+    cfg = preset_config("authors")
     assert {k: getattr(cfg, k) for k in AUTHORS_PRESET} == AUTHORS_PRESET
     assert (cfg.field, cfg.steps) == ("grid", 600)  # the fast grid, unlike --preset paper
-    assert TrainConfig(preset="authors", background="learned").background == "learned"
-    assert {k: getattr(TrainConfig(preset="paper"), k) for k in AUTHORS_PRESET} == AUTHORS_PRESET
-    obj = flip.objective(TrainConfig(preset="authors"), B_MIN)
+    assert preset_config("authors", background="learned").background == "learned"
+    assert {k: getattr(preset_config("paper"), k) for k in AUTHORS_PRESET} == AUTHORS_PRESET
+    obj = flip.objective(cfg, B_MIN)
     assert (obj.channels, obj.density_on) == ("mean", "all")
 
 
@@ -130,11 +130,11 @@ def test_a_run_in_the_authors_setting_trains_saves_and_resumes(tmp_path, backgro
     from flipviz.training.trainer import Trainer
 
     kw = dict(scene="chair", res=24, steps=20, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, no_rrd=True,
-              mirror_plane="official", preset="authors", background=background, out=tmp_path / "run")  # fmt: skip
-    m = Trainer(TrainConfig(**kw)).run()
+              mirror_plane="official", background=background, out=tmp_path / "run")  # fmt: skip
+    m = Trainer(preset_config("authors", **kw)).run()
     assert m["status"] == "finished" and math.isfinite(m["psnr"])
     assert load_checkpoint(tmp_path / "run")["config"]["background"] == background
-    again = Trainer(TrainConfig(**dict(kw, steps=30), resume=tmp_path / "run")).run()
+    again = Trainer(preset_config("authors", **dict(kw, steps=30), resume=tmp_path / "run")).run()
     assert again["status"] == "finished" and again["steps"] == 30
 
 
@@ -142,7 +142,7 @@ def test_switching_presets_resets_what_the_old_one_chose_and_keeps_your_own_sett
     """with_preset (the app's Restart / Compare "Setting"): authors -> fast gives flipviz's defaults back."""
     from flipviz.training.config import AUTHORS_PRESET, TrainConfig, with_preset
 
-    mine = TrainConfig(preset="authors", n_samples=32, background="learned")  # two settings of my own
+    mine = preset_config("authors", n_samples=32, background="learned")  # two settings of my own
     assert mine.density_on == "all" and mine.background == "learned"
     fast = with_preset(mine, "fast")
     assert fast.preset == "fast" and fast.n_samples == 32 and fast.background == "learned"

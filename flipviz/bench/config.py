@@ -60,7 +60,8 @@ class BenchConfig:
     """When the agreement gate drops a run's mirrors: restart the field on the inputs, or continue it."""
     preset: Literal["fast", "authors", "paper"] = TrainConfig.preset
     """Every run's preset: fast (flipviz's setting) | authors (the official code's loss and rendering
-    choices on the grid; with --mirror-plane official, its x = 0) | paper (those on the paper's NeRF)."""
+    choices on the grid; with --mirror-plane official, its x = 0) | paper (those on the paper's NeRF). An
+    option you pass wins over the preset's; in code, build with training.config.preset_config(name, BenchConfig)."""
     seed: int = TrainConfig.seed
     """Seed of every run (each run is independent and seeded)."""
     device: str = TrainConfig.device

@@ -12,7 +12,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from flipviz.bench.config import BenchConfig, parse_configs, parse_list, parse_methods
@@ -29,7 +29,7 @@ from flipviz.data.scenes import SCENES
 from flipviz.errors import UserError
 from flipviz.files import FolderLock, write_json
 from flipviz.training.checkpoint import CHECKPOINT_NAME
-from flipviz.training.config import TrainConfig
+from flipviz.training.config import TrainConfig, preset_config
 
 # BenchConfig fields that are TrainConfig settings, passed to every run as they are.
 RUN_SETTINGS = (
@@ -55,12 +55,12 @@ class RunSpec:
     uncertainty: bool = True
 
     def train_config(self, cfg: BenchConfig, out: Path | None = None, planes: Path | None = None) -> TrainConfig:
-        """`flipviz train`'s defaults, with this run's scene, method, configuration and flags, and
-        the bench's run settings (BenchConfig's fields named as TrainConfig's). `planes`: the folder
+        """`flipviz train`'s defaults in the bench's preset, with this run's scene, method, configuration
+        and flags, and the bench's run settings (BenchConfig's fields named as TrainConfig's). `planes`: the folder
         where the Flip runs of one configuration share their estimated plane (auto)."""
         shared = planes is not None and self.method in ("flip", "flip+u") and cfg.mirror_plane == "auto"
-        return replace(
-            TrainConfig(), scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
+        return preset_config(
+            cfg.preset, TrainConfig, scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
             config=self.config, ba=self.ba, uncertainty=self.uncertainty, out=out, no_rrd=True,
             images_every=0,  # nobody watches: skip the periodic test renders
             plane_file=planes / self.plane_name(cfg) if shared else None,

@@ -224,14 +224,9 @@ class TrainConfig:
     on the fast grid (--background last, --density-on all, --nll-channels mean, --beta-from position,
     --refine all, --mirror-pose lookat, --no-refine-plane; the code's plane is x = 0: add --mirror-plane
     official); paper: those and the paper's vanilla NeRF (--field nerf, 128 samples, 50k steps, the NLL
-    from 10k, lr 5e-4 -> 1e-4, no entropy term), for a GPU. A setting you pass yourself (other than its
-    fast default) wins over the preset's (docs/AUTHORS_SETTING.md)."""
-
-    def __post_init__(self) -> None:
-        preset = {"authors": AUTHORS_PRESET, "paper": PAPER_PRESET}.get(self.preset, {})
-        for name, value in preset.items():  # the preset's value wherever the fast default was left as it is
-            if getattr(self, name) == _FAST_DEFAULTS[name]:
-                setattr(self, name, value)
+    from 10k, lr 5e-4 -> 1e-4, no entropy term), for a GPU. On the command line every setting you pass
+    wins over the preset's, whatever its value (docs/AUTHORS_SETTING.md). In code, build a preset's
+    config with `preset_config(name, ...)`: this field alone only names it."""
 
     def validate(self) -> "TrainConfig":
         """Every setting of its type and within its stated limits, else one `UserError` line; train,
@@ -255,9 +250,9 @@ class TrainConfig:
             raise UserError(f"--plane-file {self.plane_file} is not a file (it is read, or written after the estimate)")
         if self.grid_res is not None and (not self.grid_res or any(not 8 <= r <= 512 for r in self.grid_res)):
             raise UserError(f"--grid-res needs resolutions in 8..512, got {self.grid_res!r}")
-        from flipviz.geometry.mirror import PRESETS, parse_plane
+        from flipviz.geometry.mirror import PRESETS as PLANE_PRESETS, parse_plane
 
-        if self.mirror_plane.strip().lower() not in ("auto", *PRESETS):
+        if self.mirror_plane.strip().lower() not in ("auto", *PLANE_PRESETS):
             parse_plane(self.mirror_plane)  # one line when it is neither a preset nor 'px,py,pz;nx,ny,nz'
         check_device(self.device)
         return self
@@ -267,17 +262,24 @@ class TrainConfig:
         return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}
 
 
-_FAST_DEFAULTS = {f.name: f.default for f in fields(TrainConfig) if f.name in PAPER_PRESET}  # AUTHORS_PRESET's too
-PRESETS: dict[str, dict[str, object]] = {"fast": _FAST_DEFAULTS, "authors": AUTHORS_PRESET, "paper": PAPER_PRESET}
+PRESETS: dict[str, dict[str, object]] = {"fast": {}, "authors": AUTHORS_PRESET, "paper": PAPER_PRESET}
+C = TypeVar("C")
 
-C = TypeVar("C", bound=TrainConfig)
+
+def preset_config(name: str, cls: type[C] = TrainConfig, **settings: object) -> C:
+    """The preset `name` as a config of `cls` (TrainConfig, the app's or the bench's): `cls`'s defaults,
+    the preset's settings over them (those `cls` has), then `settings` (yours) over both. The CLI
+    parses with this as its defaults, so an option you pass wins whatever its value."""
+    base = cls()
+    chosen = {k: v for k, v in PRESETS[name].items() if hasattr(base, k)}
+    return replace(base, **{**chosen, **settings, "preset": name})
 
 
 def with_preset(cfg: C, preset: str) -> C:
-    """`cfg` in another preset: the settings its preset chose go back to the fast defaults, then the new
-    preset applies; a setting given apart from the preset stays (as on the command line)."""
+    """`cfg` in another preset: each setting still at the old preset's value takes the new preset's; a
+    setting you changed from it stays (as on the command line)."""
     if preset == cfg.preset:
         return cfg
-    old = PRESETS[cfg.preset]
-    back = {k: _FAST_DEFAULTS[k] for k in _FAST_DEFAULTS if getattr(cfg, k) == old.get(k, _FAST_DEFAULTS[k])}
-    return replace(cfg, **back, preset=preset)
+    old, new = preset_config(cfg.preset, type(cfg)), preset_config(preset, type(cfg))
+    names = {k for p in PRESETS.values() for k in p if hasattr(cfg, k)}
+    return replace(cfg, **{k: getattr(new, k) for k in names if getattr(cfg, k) == getattr(old, k)}, preset=preset)
