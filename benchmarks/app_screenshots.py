@@ -28,10 +28,10 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import tyro
 
@@ -103,7 +103,9 @@ def capture_shot(args: Args) -> None:
     from flipviz.data.driveby import export_driveby
 
     data = export_driveby("chair-turned", Path(tempfile.mkdtemp()) / "drive", res=100)
-    cfg = AppConfig(data=data, mirror_plane="auto", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100)
+    cfg = AppConfig(
+        data=data, mirror_plane="auto", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100
+    )
     app = App(cfg).start()
     try:
         wait_until(lambda: app.step >= args.steps_before // 2, 600, what="training")
@@ -125,8 +127,15 @@ def compare_shot(args: Args) -> None:
 
     b_dir = Path(tempfile.mkdtemp()) / "chair-bl"
     train(TrainConfig(scene="chair", method="bl", out=b_dir, no_rrd=True))
-    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100, steps=600,
-                    browse_root=(b_dir.parent,))
+    cfg = AppConfig(
+        scene="chair",
+        no_rrd=True,
+        port=0,
+        out=Path(tempfile.mkdtemp()) / "run",
+        images_every=100,
+        steps=600,
+        browse_root=(b_dir.parent,),
+    )
     app = App(cfg).start()
     try:
         wait_until(lambda: app.status == "finished", 900, what="training A")
@@ -137,7 +146,9 @@ def compare_shot(args: Args) -> None:
             snap_to(d, app, "test 3")
             time.sleep(1.0)
             tab(d, "Compare")
-            d.find_element("xpath", "//label[normalize-space()='Or a folder']/following::input[1]").send_keys(str(b_dir))
+            d.find_element("xpath", "//label[normalize-space()='Or a folder']/following::input[1]").send_keys(
+                str(b_dir)
+            )
             time.sleep(0.5)
             button(d, "Load run B")
             wait_until(lambda: app.compare.b is not None and app.compare.scores, 120, what="run B and its scores")
@@ -152,8 +163,15 @@ def plane_shot(args: Args) -> None:
     from flipviz.data.scenes import SCENES
 
     plane = turned_plane_arg(SCENES["chair"].symmetry_plane, 10.0, 0.0)
-    cfg = AppConfig(scene="chair", mirror_plane=plane, no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run",
-                    images_every=100, steps=600)  # fmt: skip
+    cfg = AppConfig(
+        scene="chair",
+        mirror_plane=plane,
+        no_rrd=True,
+        port=0,
+        out=Path(tempfile.mkdtemp()) / "run",
+        images_every=100,
+        steps=600,
+    )
     app = App(cfg).start()
     try:
         wait_until(lambda: app.step >= 350, 600, what="training")
@@ -172,8 +190,11 @@ def agreement_shot(args: Args) -> None:
     cfg = AppConfig(scene="mug", no_rrd=True, port=0, images_every=100, out=Path(tempfile.mkdtemp()) / "run")
     app = App(cfg).start()
     try:
-        wait_until(lambda: app.trainer is not None and app.trainer.field_start > 0 and app.step > app.trainer.field_start + 50,
-                   900, what="the gate's drop and restart")  # fmt: skip
+        wait_until(
+            lambda: app.trainer is not None and app.trainer.field_start > 0 and app.step > app.trainer.field_start + 50,
+            900,
+            what="the gate's drop and restart",
+        )
         with chromium() as d:
             open_page(d, app.port, settle_s=5.0)
             tab(d, "Mirror")
@@ -187,8 +208,16 @@ def agreement_shot(args: Args) -> None:
 
 
 def fog_shot(args: Args) -> None:
-    cfg = AppConfig(scene="chair", method="bl", mirror_plane="official", no_rrd=True, port=0, images_every=100,
-                    steps=600, out=Path(tempfile.mkdtemp()) / "run")  # fmt: skip
+    cfg = AppConfig(
+        scene="chair",
+        method="bl",
+        mirror_plane="official",
+        no_rrd=True,
+        port=0,
+        images_every=100,
+        steps=600,
+        out=Path(tempfile.mkdtemp()) / "run",
+    )
     app = App(cfg).start()
     try:
         wait_until(lambda: app.status == "finished", 900, what="training A")
@@ -200,7 +229,9 @@ def fog_shot(args: Args) -> None:
             choose(d, "B setting", "authors")
             wait_until(lambda: app.compare.setting_dd.value == "authors", 30, what="the setting on the server")
             button(d, "Train B next to this run")
-            wait_until(lambda: app.compare.b is not None and not app.compare.b.thread.is_alive(), 900, what="training B")
+            wait_until(
+                lambda: app.compare.b is not None and not app.compare.b.thread.is_alive(), 900, what="training B"
+            )
             side_by_side_shot(d, app, args.out / "app_fog.png")
     finally:
         app.stop()
@@ -209,7 +240,9 @@ def fog_shot(args: Args) -> None:
 @contextmanager
 def chair_in_browser(args: Args, **settings) -> Iterator[tuple[App, object]]:
     """The chair training at the defaults (but `settings`), past `args.steps_before` steps, in headless Chromium."""
-    cfg = AppConfig(scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100, **settings)
+    cfg = AppConfig(
+        scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100, **settings
+    )
     app = App(cfg).start()
     try:
         wait_until(lambda: app.step >= args.steps_before, 600, what="training")
@@ -248,8 +281,11 @@ def orbit_shots(args: Args) -> None:
         (args.out / "app_snapped.png").write_bytes(screenshot_png(d))
         choose(d, "Scene", "mug")
         button(d, "Restart training")
-        wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before, 600,
-                   what="the mug")  # fmt: skip
+        wait_until(
+            lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before,
+            600,
+            what="the mug",
+        )
         open_page(d, app.port, settle_s=4.0)  # a new scene: load the page afresh
         tab(d, "Mirror")
         if app.mirror.dropped:  # the default gate doubts the mug's plane: its mirrors, drawn anyway

@@ -54,27 +54,50 @@ def main(a: Args) -> None:
     for scene in a.scenes.split(","):
         for config in (int(c) for c in a.configs.split(",")):
             with tempfile.TemporaryDirectory() as tmp:
-                cfg = TrainConfig(scene=scene, config=config, steps=a.steps, out=Path(tmp) / "run", no_rrd=True, images_every=0,
-                                  checkpoint_every=0, unconfident_plane="drop" if a.gate else "use",
-                                  disagreement_limit=TrainConfig.disagreement_limit if a.gate else float("inf"), estimate_after=a.estimate_after)  # fmt: skip
+                cfg = TrainConfig(
+                    scene=scene,
+                    config=config,
+                    steps=a.steps,
+                    out=Path(tmp) / "run",
+                    no_rrd=True,
+                    images_every=0,
+                    checkpoint_every=0,
+                    unconfident_plane="drop" if a.gate else "use",
+                    disagreement_limit=TrainConfig.disagreement_limit if a.gate else float("inf"),
+                    estimate_after=a.estimate_after,
+                )
                 tr = Trainer(cfg)
                 curve = Curve()
                 tr.add_observer(curve)
                 m = tr.run()
             est = tr.plane_estimate
-            run = {"scene": scene, "config": config, "confidence": est.confidence if est else None, "psnr": m["psnr"],
-                   "curve": curve.rows, "plane": m.get("plane", {})}  # fmt: skip
+            run = {
+                "scene": scene,
+                "config": config,
+                "confidence": est.confidence if est else None,
+                "psnr": m["psnr"],
+                "curve": curve.rows,
+                "plane": m.get("plane", {}),
+            }
             runs.append(run)
             d = [r.get("disagreement", np.nan) for r in curve.rows]
-            print(f"{scene} c{config}: confidence {run['confidence']:.3f}, disagreement at 20/50/100% of the steps "
-                  f"{d[len(d) // 5]:.2f} / {d[len(d) // 2]:.2f} / {d[-1]:.2f}, test PSNR {m['psnr']:.2f}", flush=True)  # fmt: skip
+            print(
+                f"{scene} c{config}: confidence {run['confidence']:.3f}, disagreement at 20/50/100% of the steps "
+                f"{d[len(d) // 5]:.2f} / {d[len(d) // 2]:.2f} / {d[-1]:.2f}, test PSNR {m['psnr']:.2f}",
+                flush=True,
+            )
     a.out.mkdir(parents=True, exist_ok=True)
     write_json(a.out / "agreement.json", runs)
-    lines = ["| scene | config | confidence | disagreement at 20% | 50% | 100% | test PSNR |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| scene | config | confidence | disagreement at 20% | 50% | 100% | test PSNR |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in runs:
         d = [c.get("disagreement", np.nan) for c in r["curve"]]
-        lines.append(f"| {r['scene']} | {r['config']} | {r['confidence']:.3f} | {d[len(d) // 5]:.2f} | {d[len(d) // 2]:.2f} | "
-                     f"{d[-1]:.2f} | {r['psnr']:.2f} |")  # fmt: skip
+        lines.append(
+            f"| {r['scene']} | {r['config']} | {r['confidence']:.3f} | {d[len(d) // 5]:.2f} | {d[len(d) // 2]:.2f} | "
+            f"{d[-1]:.2f} | {r['psnr']:.2f} |"
+        )
     write_text(a.out / "agreement.md", "# Do the mirrors agree with the inputs?\n\n" + "\n".join(lines) + "\n")
 
 

@@ -34,8 +34,9 @@ import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # a checkout without installing; the test client
-from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
 from viser_client import ViserTestClient  # noqa: E402
+
+from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
 
 
 @dataclass
@@ -85,7 +86,9 @@ def _clients_process(url: str, n: int, seconds: float, center, radius: float, ho
     """Runs in its own process (as browsers would), so the clients do not compete for the app's GIL."""
 
     async def run() -> list[int]:
-        return list(await asyncio.gather(*(drag(url, k, seconds, np.asarray(center), radius, hostile) for k in range(n))))
+        return list(
+            await asyncio.gather(*(drag(url, k, seconds, np.asarray(center), radius, hostile) for k in range(n)))
+        )
 
     q.put("ready")
     q.put(asyncio.run(run()))
@@ -100,7 +103,9 @@ def measure(app: App, n: int, seconds: float, hostile: bool = False) -> dict:
     if n > 0:
         ctx = mp.get_context("spawn")
         q = ctx.Queue()
-        proc = ctx.Process(target=_clients_process, args=(url, n, seconds, center.tolist(), radius, hostile, q), daemon=True)
+        proc = ctx.Process(
+            target=_clients_process, args=(url, n, seconds, center.tolist(), radius, hostile, q), daemon=True
+        )
         proc.start()
         assert q.get(timeout=300) == "ready"  # the client process has imported; it connects now
     busy0, jobs0 = app.worker.busy_s, app.worker.jobs_done
@@ -125,10 +130,19 @@ def measure(app: App, n: int, seconds: float, hostile: bool = False) -> dict:
 
 def main(bc: BenchConfig) -> list[dict]:
     cfg = AppConfig(
-        scene=bc.scene, res=bc.res, batch_rays=bc.batch_rays, steps=10_000_000, no_rrd=True, port=0,
-        images_every=0, checkpoint_every=0, eval_on_stop=False, out=Path(tempfile.mkdtemp()) / "run",
-        view_width=bc.view_width, render_duty=bc.render_duty,
-    )  # fmt: skip
+        scene=bc.scene,
+        res=bc.res,
+        batch_rays=bc.batch_rays,
+        steps=10_000_000,
+        no_rrd=True,
+        port=0,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        out=Path(tempfile.mkdtemp()) / "run",
+        view_width=bc.view_width,
+        render_duty=bc.render_duty,
+    )
     app = App(cfg).start()
     try:
         t = time.monotonic()
@@ -158,7 +172,10 @@ def main(bc: BenchConfig) -> list[dict]:
     if bc.hostile:
         one = [r["vs_adjacent_solo"] for r in rows if r["clients"] == 1 and r["vs_adjacent_solo"]]
         if one:
-            print(f"target (one 6000 px client >= 80% of solo): {'met' if min(one) >= 0.8 else 'NOT met'} ({min(one):.0%})")
+            print(
+                f"target (one 6000 px client >= 80% of solo): "
+                f"{'met' if min(one) >= 0.8 else 'NOT met'} ({min(one):.0%})"
+            )
     four = [r["vs_adjacent_solo"] for r in rows if r["clients"] == 4 and r["vs_adjacent_solo"]]
     if four:
         print(f"target (4 clients >= 50% of solo): {'met' if min(four) >= 0.5 else 'NOT met'} ({min(four):.0%})")

@@ -46,8 +46,17 @@ def rows_with_coverage(table: str, plane: str, pose: str) -> list[dict]:
     for r in csv.DictReader((ROOT / "docs/results" / table / "results.csv").open()):
         if r["status"] != "ok" or (r["method"] == "flip+u" and r["ba"] != "True"):
             continue
-        rows.append({"scene": r["scene"], "method": r["method"], "config": int(r["config"]), "psnr": float(r["psnr"]),
-                     "status": "ok", "ba": r["ba"] == "True", "uncertainty": r["uncertainty"] == "True"})  # fmt: skip
+        rows.append(
+            {
+                "scene": r["scene"],
+                "method": r["method"],
+                "config": int(r["config"]),
+                "psnr": float(r["psnr"]),
+                "status": "ok",
+                "ba": r["ba"] == "True",
+                "uncertainty": r["uncertainty"] == "True",
+            }
+        )
     cov: dict[tuple, dict] = {}
     for scene in sorted({r["scene"] for r in rows}):
         data = load_scene("lego", LEGO, 50) if scene == "lego" else load_scene(scene, None, 16)
@@ -61,14 +70,22 @@ def rows_with_coverage(table: str, plane: str, pose: str) -> list[dict]:
 
 
 def main(args: Args) -> None:
-    lines = ["# Why a configuration gains or loses: the mirrors' coverage of the unobserved views", "",
-             "Gain: Flip+U - B/L PSNR (dB) of the committed tables. Coverage: per unobserved view, the angle (about the "
-             "object's centre) to the nearest mirrored camera; its mean over the 8 views, and the share within 30 degrees. "
-             "`python benchmarks/bench_coverage.py` writes this page from the committed results.csv files (no training).", ""]  # fmt: skip
+    lines = [
+        "# Why a configuration gains or loses: the mirrors' coverage of the unobserved views",
+        "",
+        "Gain: Flip+U - B/L PSNR (dB) of the committed tables. Coverage: per unobserved view, the angle (about the "
+        "object's centre) to the nearest mirrored camera; its mean over the 8 views, and the share within 30 degrees. "
+        "`python benchmarks/bench_coverage.py` writes this page from the committed results.csv files (no training).",
+        "",
+    ]
     for table, (plane, pose) in TABLES.items():
         rows = rows_with_coverage(table, plane, pose)
-        lines += [f"## {table} (plane `{plane}`, pose `{pose}`)", "",
-                  "| scene | config | gain (dB) | mean angle (deg) | within 30 deg |", "|---|---|---|---|---|"]  # fmt: skip
+        lines += [
+            f"## {table} (plane `{plane}`, pose `{pose}`)",
+            "",
+            "| scene | config | gain (dB) | mean angle (deg) | within 30 deg |",
+            "|---|---|---|---|---|",
+        ]
         for scene in sorted({r["scene"] for r in rows}):
             gains, angles = [], []
             for n in range(1, 9):

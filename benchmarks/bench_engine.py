@@ -76,11 +76,19 @@ def run_curve(cfg: TrainConfig, eval_every: int, seconds: float | None = None) -
         points.append((tr.train_seconds, tr.step, final))
     t_conv, s_conv = time_to_within(points, final)
     return {
-        "field": cfg.field, "scene": m["scene"], "method": cfg.method, "steps": tr.step,
-        "final_psnr": final, "ssim": m["ssim"], "train_seconds": tr.train_seconds,
-        "s_per_step": tr.train_seconds / max(tr.step, 1), "seconds_to_final_0.5dB": t_conv, "step_to_final_0.5dB": s_conv,
-        "render_200_ms": render_ms(tr), "curve": [(round(t, 1), s, round(p, 2)) for t, s, p in points],
-    }  # fmt: skip
+        "field": cfg.field,
+        "scene": m["scene"],
+        "method": cfg.method,
+        "steps": tr.step,
+        "final_psnr": final,
+        "ssim": m["ssim"],
+        "train_seconds": tr.train_seconds,
+        "s_per_step": tr.train_seconds / max(tr.step, 1),
+        "seconds_to_final_0.5dB": t_conv,
+        "step_to_final_0.5dB": s_conv,
+        "render_200_ms": render_ms(tr),
+        "curve": [(round(t, 1), s, round(p, 2)) for t, s, p in points],
+    }
 
 
 @dataclass
@@ -126,7 +134,7 @@ def main(args: Args) -> None:
             print(json.dumps({k: v for k, v in r.items() if k != "curve"}))
         print(
             f"{name}: grid Flip+U {g['final_psnr']:.2f} dB, within 0.5 dB after {g['seconds_to_final_0.5dB']:.0f} s "
-            f"({g['s_per_step']*1000:.0f} ms/step), 200x200 render {g['render_200_ms']:.0f} ms | vanilla NeRF "
+            f"({g['s_per_step'] * 1000:.0f} ms/step), 200x200 render {g['render_200_ms']:.0f} ms | vanilla NeRF "
             f"{n['final_psnr']:.2f} dB after {n['train_seconds']:.0f} s ({n['s_per_step']:.2f} s/step), render "
             f"{n['render_200_ms']:.0f} ms | speed-up to the same PSNR: "
             + (f"{speedup:.0f}x" if speedup else f">= {lower:.0f}x (NeRF never reached {g['final_psnr']:.2f} dB)")

@@ -64,8 +64,10 @@ def main(args: Args) -> None:
     ring = [scene.views[i] for i in RING_INDICES]
     test = ring[1::4]
     train = [v for k, v in enumerate(ring) if k % 4 != 1]
-    print(f"chair {args.res}px: {len(train)} train / {len(test)} test views, {torch.get_num_threads()} threads, "
-          f"load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"chair {args.res}px: {len(train)} train / {len(test)} test views, {torch.get_num_threads()} threads, "
+        f"load average {os.getloadavg()[0]:.1f}"
+    )
     for name in args.fields:
         cfg, rays = CONFIGS[name]
         torch.manual_seed(0)
@@ -93,8 +95,10 @@ def main(args: Args) -> None:
         sec = float(np.median(tail))
         r100 = render_time(model, test[0].camera, 100)
         r200 = render_time(model, test[0].camera, 200)
-        print(f"\n[{name}] {rays} rays/step, median step (second half) {sec * 1000:.0f} ms, "
-              f"{rays / sec:.0f} rays/s; steps done {r['steps']}; resolution {getattr(model.field, 'resolution', '-')}")
+        print(
+            f"\n[{name}] {rays} rays/step, median step (second half) {sec * 1000:.0f} ms, "
+            f"{rays / sec:.0f} rays/s; steps done {r['steps']}; resolution {getattr(model.field, 'resolution', '-')}"
+        )
         print(f"  render 100px {r100 * 1000:.0f} ms, 200px {r200 * 1000:.0f} ms")
         for el, step, p in results:
             print(f"  held-out PSNR after {el:.0f} s of training (step {step}): {p:.2f} dB")

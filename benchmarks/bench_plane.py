@@ -67,8 +67,15 @@ def estimates(args: Args) -> list[dict]:
         truth = LEGO_PLANE if name == "lego" else scene.symmetry_plane
         for c in (int(x) for x in args.configs.split(",")):
             est = estimate_plane(make_split(scene, c).inputs, scene)
-            row = {"scene": name, "config": c, "confidence": est.confidence, "confident": est.confident,
-                   "seconds": est.seconds, "fit_seconds": est.meta["fit_seconds"], "symmetric": truth is not None}  # fmt: skip
+            row = {
+                "scene": name,
+                "config": c,
+                "confidence": est.confidence,
+                "confident": est.confident,
+                "seconds": est.seconds,
+                "fit_seconds": est.meta["fit_seconds"],
+                "symmetric": truth is not None,
+            }
             if truth is not None:
                 row["error_deg"], row["error_offset"] = plane_error(est.plane, truth)
             rows.append(row)
@@ -79,50 +86,105 @@ def estimates(args: Args) -> list[dict]:
 
 def training(args: Args) -> list[dict]:
     rows = []
-    runs = [("bl", "official", True, "reflect")] + [("flip+u", p, ba, "reflect") for p in ("auto", "scene", "official") for ba in (True, False)]
+    runs = [("bl", "official", True, "reflect")] + [
+        ("flip+u", p, ba, "reflect") for p in ("auto", "scene", "official") for ba in (True, False)
+    ]
     runs += [("flip+u", p, True, "lookat") for p in ("auto", "scene")]  # the paper's initial pose
     with tempfile.TemporaryDirectory() as tmp:
         for c in (int(x) for x in args.train_configs.split(",")):
             for method, plane, ba, pose in runs:
-                cfg = TrainConfig(scene="chair-turned", method=method, config=c, mirror_plane=plane, ba=ba, mirror_pose=pose,
-                                  steps=args.steps, out=Path(tmp) / f"{method}-{plane}-{ba}-{pose}-{c}", no_rrd=True, images_every=0)  # fmt: skip
+                cfg = TrainConfig(
+                    scene="chair-turned",
+                    method=method,
+                    config=c,
+                    mirror_plane=plane,
+                    ba=ba,
+                    mirror_pose=pose,
+                    steps=args.steps,
+                    out=Path(tmp) / f"{method}-{plane}-{ba}-{pose}-{c}",
+                    no_rrd=True,
+                    images_every=0,
+                )
                 t0 = time.perf_counter()
                 trainer, m = train(cfg)
-                row = {"config": c, "method": method, "plane": plane, "ba": ba, "pose": pose, "psnr": m["psnr"], "ssim": m["ssim"],
-                       "seconds": time.perf_counter() - t0, **{k: v for k, v in m.get("plane", {}).items() if k != "used"}}  # fmt: skip
+                row = {
+                    "config": c,
+                    "method": method,
+                    "plane": plane,
+                    "ba": ba,
+                    "pose": pose,
+                    "psnr": m["psnr"],
+                    "ssim": m["ssim"],
+                    "seconds": time.perf_counter() - t0,
+                    **{k: v for k, v in m.get("plane", {}).items() if k != "used"},
+                }
                 if "mirror_poses" in m and "mirror_rot_err_deg" in m["mirror_poses"]:
                     row["final_pose_err_deg"] = float(np.mean(m["mirror_poses"]["mirror_rot_err_deg"]))
                 rows.append(row)
-                print(f"c{c} {method:6s} {plane:8s} {pose:7s} BA {'on ' if ba else 'off'} {m['psnr']:.2f} dB  {row['seconds']:.0f} s", flush=True)
+                print(
+                    f"c{c} {method:6s} {plane:8s} {pose:7s} BA {'on ' if ba else 'off'} "
+                    f"{m['psnr']:.2f} dB  {row['seconds']:.0f} s",
+                    flush=True,
+                )
     return rows
 
 
 def summary(est: list[dict], tr: list[dict]) -> str:
     out = ["# --mirror-plane auto (benchmarks/bench_plane.py)", ""]
     if est:
-        out += ["## The estimate, per scene (mean over configurations; lego against x = 0)", "",
-                "| scene | plane error (deg) | offset | confident | confidence | seconds |", "|---|---|---|---|---|---|"]  # fmt: skip
+        out += [
+            "## The estimate, per scene (mean over configurations; lego against x = 0)",
+            "",
+            "| scene | plane error (deg) | offset | confident | confidence | seconds |",
+            "|---|---|---|---|---|---|",
+        ]
         for name in dict.fromkeys(r["scene"] for r in est):
             rs = [r for r in est if r["scene"] == name]
-            deg = f"{np.mean([r['error_deg'] for r in rs]):.2f} (max {max(r['error_deg'] for r in rs):.2f})" if rs[0]["symmetric"] else "-"
+            deg = (
+                f"{np.mean([r['error_deg'] for r in rs]):.2f} (max {max(r['error_deg'] for r in rs):.2f})"
+                if rs[0]["symmetric"]
+                else "-"
+            )
             off = f"{np.mean([r['error_offset'] for r in rs]):.3f}" if rs[0]["symmetric"] else "-"
-            out.append(f"| {name} | {deg} | {off} | {sum(r['confident'] for r in rs)}/{len(rs)} | "
-                       f"{np.mean([r['confidence'] for r in rs]):.2f} | {np.mean([r['seconds'] for r in rs]):.1f} |")  # fmt: skip
-        out += ["", f"Confidence threshold {CONFIDENT} (tuned on the untouched chair, truck, mug and lamp, configurations 1 and 4).", ""]
+            out.append(
+                f"| {name} | {deg} | {off} | {sum(r['confident'] for r in rs)}/{len(rs)} | "
+                f"{np.mean([r['confidence'] for r in rs]):.2f} | {np.mean([r['seconds'] for r in rs]):.1f} |"
+            )
+        out += [
+            "",
+            f"Confidence threshold {CONFIDENT} "
+            "(tuned on the untouched chair, truck, mug and lamp, configurations 1 and 4).",
+            "",
+        ]
     if tr:
-        out += ["## Flip+U on the turned chair: which plane, BA on / off (unobserved-view PSNR, dB)", "",
-                "| run | " + " | ".join(f"config {c}" for c in dict.fromkeys(r["config"] for r in tr)) + " | mean |",
-                "|---|" + "---|" * (len({r['config'] for r in tr}) + 1)]  # fmt: skip
+        out += [
+            "## Flip+U on the turned chair: which plane, BA on / off (unobserved-view PSNR, dB)",
+            "",
+            "| run | " + " | ".join(f"config {c}" for c in dict.fromkeys(r["config"] for r in tr)) + " | mean |",
+            "|---|" + "---|" * (len({r["config"] for r in tr}) + 1),
+        ]
         for key in dict.fromkeys((r["method"], r["plane"], r["ba"], r["pose"]) for r in tr):
             rs = [r for r in tr if (r["method"], r["plane"], r["ba"], r["pose"]) == key]
             label = "B/L" if key[0] == "bl" else f"Flip+U, {key[1]}, {key[3]} pose, BA {'on' if key[2] else 'off'}"
-            out.append(f"| {label} | " + " | ".join(f"{r['psnr']:.2f}" for r in rs) + f" | **{np.mean([r['psnr'] for r in rs]):.2f}** |")
-        out += ["", "Mean error of the mirrored poses against the exact reflections through the true plane at the end of",
-                "training (rotation, degrees; with BA off it is the initial error):", ""]  # fmt: skip
-        for key in dict.fromkeys((r["method"], r["plane"], r["ba"], r["pose"]) for r in tr if "final_pose_err_deg" in r):
+            out.append(
+                f"| {label} | "
+                + " | ".join(f"{r['psnr']:.2f}" for r in rs)
+                + f" | **{np.mean([r['psnr'] for r in rs]):.2f}** |"
+            )
+        out += [
+            "",
+            "Mean error of the mirrored poses against the exact reflections through the true plane at the end of",
+            "training (rotation, degrees; with BA off it is the initial error):",
+            "",
+        ]
+        for key in dict.fromkeys(
+            (r["method"], r["plane"], r["ba"], r["pose"]) for r in tr if "final_pose_err_deg" in r
+        ):
             rs = [r for r in tr if (r["method"], r["plane"], r["ba"], r["pose"]) == key]
-            out.append(f"- {key[1]}, {key[3]} pose, BA {'on' if key[2] else 'off'}: "
-                       f"{np.mean([r['final_pose_err_deg'] for r in rs]):.2f} deg")  # fmt: skip
+            out.append(
+                f"- {key[1]}, {key[3]} pose, BA {'on' if key[2] else 'off'}: "
+                f"{np.mean([r['final_pose_err_deg'] for r in rs]):.2f} deg"
+            )
     return "\n".join(out) + "\n"
 
 

@@ -7,7 +7,8 @@ issue's table: the gain Flip+U - B/L per scene, configurations 1 and 5 of the ch
 plane's error against the scene's true plane before and after training (lego: against x = 0, its
 approximate plane).
 
-    python benchmarks/bench_plane_refine.py [--scenes chair,chair-turned,mug,lamp] [--lego] [--out docs/results/plane_refine]
+    python benchmarks/bench_plane_refine.py [--scenes chair,chair-turned,mug,lamp] [--lego]
+        [--out docs/results/plane_refine]
 
 Each bench keeps its own folder under --out (resumable: run the same command again). Nothing here
 picks a setting: the plane's learning rate and BA's start were chosen on held-out views
@@ -52,8 +53,10 @@ def num(r: dict, key: str) -> float | None:
 
 def summary(on: list[dict], off: list[dict], scenes: list[str]) -> str:
     """The issue's table from the two benches' rows."""
-    head = ("| scene | B/L | Flip+U, plane fixed | Flip+U, plane refined | gain fixed | gain refined | "
-            "configs 1 / 5 gain refined | plane error before (max over configs) | after (max) | mirrors dropped |")  # fmt: skip
+    head = (
+        "| scene | B/L | Flip+U, plane fixed | Flip+U, plane refined | gain fixed | gain refined | "
+        "configs 1 / 5 gain refined | plane error before (max over configs) | after (max) | mirrors dropped |"
+    )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for scene in scenes:
         pick = lambda rs, m: {int(r["config"]): r for r in rs if r["scene"] == scene and r["method"] == m}  # noqa: E731
@@ -67,10 +70,18 @@ def summary(on: list[dict], off: list[dict], scenes: list[str]) -> str:
         after, off_a = [num(r, "refined_error_deg") for r in kept], [num(r, "refined_error_offset") for r in kept]
         dropped = sum(r.get("mirrors_trained") == "False" for r in refined.values())
         err = lambda d, o: f"{max(d):.2f}° / {max(o):.3f}" if d and None not in d else "-"  # noqa: E731
-        cells = [scene, f"{mean(bl):.2f}", f"{mean(fixed):.2f}" if fixed else "-", f"{mean(refined):.2f}",
-                 f"{mean(fixed) - mean(bl):+.2f}" if fixed else "-", f"{mean(refined) - mean(bl):+.2f}",
-                 " / ".join(f"{g[n]:+.2f}" if n in g else "-" for n in (1, 5)), err(before, off_b), err(after, off_a),
-                 f"{dropped} of {len(refined)}"]  # fmt: skip
+        cells = [
+            scene,
+            f"{mean(bl):.2f}",
+            f"{mean(fixed):.2f}" if fixed else "-",
+            f"{mean(refined):.2f}",
+            f"{mean(fixed) - mean(bl):+.2f}" if fixed else "-",
+            f"{mean(refined) - mean(bl):+.2f}",
+            " / ".join(f"{g[n]:+.2f}" if n in g else "-" for n in (1, 5)),
+            err(before, off_b),
+            err(after, off_a),
+            f"{dropped} of {len(refined)}",
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -82,9 +93,12 @@ def main(a: Args) -> None:
     on = run_bench(BenchConfig(**common, methods="bl,flip+u", out=a.out / "refined"))
     off = run_bench(BenchConfig(**common, methods="flip+u", refine_plane=False, out=a.out / "fixed"))
     table = summary(rows(on), rows(off), scenes)
-    write_text(a.out / "README.md", "# The plane refined during training\n\n`python benchmarks/bench_plane_refine.py"
-               f"{' --lego' if a.lego else ''}`: B/L and Flip+U at the defaults, 100 px, 600 steps, configurations "
-               f"{a.configs}; Flip+U with the plane refined (`refined/`) and fixed (`fixed/`).\n\n{table}\n")  # fmt: skip
+    write_text(
+        a.out / "README.md",
+        "# The plane refined during training\n\n`python benchmarks/bench_plane_refine.py"
+        f"{' --lego' if a.lego else ''}`: B/L and Flip+U at the defaults, 100 px, 600 steps, configurations "
+        f"{a.configs}; Flip+U with the plane refined (`refined/`) and fixed (`fixed/`).\n\n{table}\n",
+    )
     print(table)
 
 

@@ -53,32 +53,58 @@ def worst(planes: list[Plane], true: Plane) -> tuple[float, float]:
 
 def main(a: Args) -> None:
     torch.set_num_threads(a.threads)
-    head = "| scene | config | seeds | estimate: spread | worst error | refined: spread | worst error | PSNR min - max |"
+    head = (
+        "| scene | config | seeds | estimate: spread | worst error | refined: spread | worst error | PSNR min - max |"
+    )
     rows, lines = [], [head, "|---|---|---|---|---|---|---|---|"]
     for scene in a.scenes.split(","):
         for config in (int(c) for c in a.configs.split(",")):
             est, ref, psnr = [], [], []
             for seed in (int(s) for s in a.seeds.split(",")):
                 with tempfile.TemporaryDirectory() as tmp:
-                    tr = Trainer(TrainConfig(scene=scene, config=config, seed=seed, out=Path(tmp) / "run", no_rrd=True,
-                                             images_every=0, checkpoint_every=0, unconfident_plane="use"))  # fmt: skip
+                    tr = Trainer(
+                        TrainConfig(
+                            scene=scene,
+                            config=config,
+                            seed=seed,
+                            out=Path(tmp) / "run",
+                            no_rrd=True,
+                            images_every=0,
+                            checkpoint_every=0,
+                            unconfident_plane="use",
+                        )
+                    )
                     m = tr.run()
                 est.append(tr.mirrors.plane)
                 ref.append(tr.flip.current_plane())
                 psnr.append(m["psnr"])
                 true = tr.scene.symmetry_plane
-                rows.append({"scene": scene, "config": config, "seed": seed, "psnr": m["psnr"],
-                             "estimate": est[-1].to_dict(), "refined": ref[-1].to_dict(),
-                             "estimate_error": plane_error(est[-1], true), "refined_error": plane_error(ref[-1], true)})  # fmt: skip
+                rows.append(
+                    {
+                        "scene": scene,
+                        "config": config,
+                        "seed": seed,
+                        "psnr": m["psnr"],
+                        "estimate": est[-1].to_dict(),
+                        "refined": ref[-1].to_dict(),
+                        "estimate_error": plane_error(est[-1], true),
+                        "refined_error": plane_error(ref[-1], true),
+                    }
+                )
                 print(rows[-1])
             (sd, so), (rd, ro), (ed, eo), (wd, wo) = spread(est), spread(ref), worst(est, true), worst(ref, true)
-            lines.append(f"| {scene} | {config} | {len(est)} | {sd:.2f}° / {so:.3f} | {ed:.2f}° / {eo:.3f} | "
-                         f"{rd:.2f}° / {ro:.3f} | {wd:.2f}° / {wo:.3f} | {min(psnr):.2f} - {max(psnr):.2f} |")  # fmt: skip
+            lines.append(
+                f"| {scene} | {config} | {len(est)} | {sd:.2f}° / {so:.3f} | {ed:.2f}° / {eo:.3f} | "
+                f"{rd:.2f}° / {ro:.3f} | {wd:.2f}° / {wo:.3f} | {min(psnr):.2f} - {max(psnr):.2f} |"
+            )
     a.out.mkdir(parents=True, exist_ok=True)
     write_json(a.out / "seeds.json", rows)
-    write_text(a.out / "seeds.md", "# The plane over seeds\n\n`python benchmarks/bench_plane_seeds.py "
-               f"--scenes {a.scenes} --configs {a.configs} --seeds {a.seeds}` (Flip+U at the defaults, the estimate kept "
-               "even when doubted)\n\n" + "\n".join(lines) + "\n")  # fmt: skip
+    write_text(
+        a.out / "seeds.md",
+        "# The plane over seeds\n\n`python benchmarks/bench_plane_seeds.py "
+        f"--scenes {a.scenes} --configs {a.configs} --seeds {a.seeds}` (Flip+U at the defaults, the estimate kept "
+        "even when doubted)\n\n" + "\n".join(lines) + "\n",
+    )
     print("\n".join(lines))
 
 

@@ -59,8 +59,12 @@ def measure(path: Path, reads: int) -> dict:
         times.append(time.perf_counter() - t)
     t = time.perf_counter()
     subprocess.run([*_rerun_cli(), "rrd", "verify", str(path)], check=True, capture_output=True)
-    return {"bytes": path.stat().st_size, "chunks": chunks, "read_ms": 1e3 * statistics.median(times),
-            "verify_ms": 1e3 * (time.perf_counter() - t)}  # fmt: skip
+    return {
+        "bytes": path.stat().st_size,
+        "chunks": chunks,
+        "read_ms": 1e3 * statistics.median(times),
+        "verify_ms": 1e3 * (time.perf_counter() - t),
+    }
 
 
 def main(args: Args) -> None:
@@ -81,11 +85,20 @@ def main(args: Args) -> None:
         t = time.perf_counter()
         optimize_recording(compact)
         compaction_s = time.perf_counter() - t
-        result = {"as_logged": measure(raw, args.reads), "compacted": measure(compact, args.reads),
-                  "compaction_s": compaction_s, "scene": args.scene, "steps": args.steps, "res": args.res}  # fmt: skip
+        result = {
+            "as_logged": measure(raw, args.reads),
+            "compacted": measure(compact, args.reads),
+            "compaction_s": compaction_s,
+            "scene": args.scene,
+            "steps": args.steps,
+            "res": args.res,
+        }
     for k in ("as_logged", "compacted"):
         m = result[k]
-        print(f"{k:10s}: {m['bytes'] / 1e6:.2f} MB, {m['chunks']} chunks, read {m['read_ms']:.0f} ms, verify {m['verify_ms']:.0f} ms")
+        print(
+            f"{k:10s}: {m['bytes'] / 1e6:.2f} MB, {m['chunks']} chunks, "
+            f"read {m['read_ms']:.0f} ms, verify {m['verify_ms']:.0f} ms"
+        )
     if args.out is not None:
         args.out.write_text(json.dumps(result, indent=2))
 

@@ -51,8 +51,17 @@ def measure(args: Args) -> dict:
     t_import = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         data = {"data": LEGO} if args.scene == "lego" else {}
-        cfg = TrainConfig(scene=args.scene, method=args.method, config=args.config, res=args.res, steps=args.steps,
-                          no_rrd=True, images_every=0, out=Path(tmp) / "run", **data)  # fmt: skip
+        cfg = TrainConfig(
+            scene=args.scene,
+            method=args.method,
+            config=args.config,
+            res=args.res,
+            steps=args.steps,
+            no_rrd=True,
+            images_every=0,
+            out=Path(tmp) / "run",
+            **data,
+        )
         t = time.perf_counter()
         scene = load_scene_for(cfg)
         t_scene = time.perf_counter() - t
@@ -63,9 +72,16 @@ def measure(args: Args) -> dict:
         t = time.perf_counter()
         m = trainer.run()
         t_run = time.perf_counter() - t
-    return {"import": t_import, "scene": t_scene, "plane estimate": est, "setup": t_build - est,
-            "training": trainer.train_seconds, "evaluation and files": t_run - trainer.train_seconds,
-            "total": time.perf_counter() - t0, "psnr": m["psnr"]}  # fmt: skip
+    return {
+        "import": t_import,
+        "scene": t_scene,
+        "plane estimate": est,
+        "setup": t_build - est,
+        "training": trainer.train_seconds,
+        "evaluation and files": t_run - trainer.train_seconds,
+        "total": time.perf_counter() - t0,
+        "psnr": m["psnr"],
+    }
 
 
 def main(args: Args) -> None:
@@ -74,8 +90,23 @@ def main(args: Args) -> None:
         return
     from flipviz.files import write_json, write_text
 
-    cmd = [sys.executable, __file__, "--child", "--scene", args.scene, "--method", args.method, "--config",
-           str(args.config), "--res", str(args.res), "--steps", str(args.steps), "--threads", str(args.threads)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        __file__,
+        "--child",
+        "--scene",
+        args.scene,
+        "--method",
+        args.method,
+        "--config",
+        str(args.config),
+        "--res",
+        str(args.res),
+        "--steps",
+        str(args.steps),
+        "--threads",
+        str(args.threads),
+    ]
     subprocess.run([sys.executable, "-c", "import flipviz.training.trainer"], check=True)  # warm the page cache
     res = {}
     for mode in ("flipviz", "default"):
@@ -84,10 +115,16 @@ def main(args: Args) -> None:
         res[mode] = json.loads(out.strip().splitlines()[-1])
         print(mode, res[mode], flush=True)
     phases = [k for k in res["flipviz"] if k != "psnr"]
-    lines = ["# Where a bench run's wall time goes", "",
-             f"`python benchmarks/bench_run_time.py --scene {args.scene} --method {args.method} --config {args.config}`: "
-             f"{args.res} px, {args.steps} steps, {args.threads} torch thread(s), a fresh process each, idle 2-core machine.", "",
-             "| phase (s) | flipviz's allocator setting | glibc's defaults |", "|---|---|---|"]  # fmt: skip
+    lines = [
+        "# Where a bench run's wall time goes",
+        "",
+        f"`python benchmarks/bench_run_time.py --scene {args.scene} --method {args.method} --config {args.config}`: "
+        f"{args.res} px, {args.steps} steps, {args.threads} torch thread(s), "
+        "a fresh process each, idle 2-core machine.",
+        "",
+        "| phase (s) | flipviz's allocator setting | glibc's defaults |",
+        "|---|---|---|",
+    ]
     lines += [f"| {k} | {res['flipviz'][k]:.1f} | {res['default'][k]:.1f} |" for k in phases]
     lines += [f"| PSNR (dB) | {res['flipviz']['psnr']:.2f} | {res['default']['psnr']:.2f} |"]
     write_json(args.out / "results.json", res)

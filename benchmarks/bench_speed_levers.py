@@ -58,8 +58,17 @@ def train_one(job: tuple[str, str, int]) -> dict:
     lever, method, config = job
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = TrainConfig(scene="lego", data=LEGO, method=method, config=config, res=100, no_rrd=True,
-                          images_every=0, checkpoint_every=0, out=Path(tmp) / "run")  # fmt: skip
+        cfg = TrainConfig(
+            scene="lego",
+            data=LEGO,
+            method=method,
+            config=config,
+            res=100,
+            no_rrd=True,
+            images_every=0,
+            checkpoint_every=0,
+            out=Path(tmp) / "run",
+        )
         scene = load_scene_for(cfg)
         trainer = Trainer(cfg, scene)
         field = trainer.model.field
@@ -67,8 +76,13 @@ def train_one(job: tuple[str, str, int]) -> dict:
         trainer.run()  # its test-view scores are not read here
         views = [scene.views[i] for i in HELD_OUT]
         psnrs = [image_psnr(trainer.render(v.camera, ("rgb",))["rgb"], v.rgb) for v in views]
-    return {"lever": lever, "method": method, "config": config, "train_seconds": trainer.train_seconds,
-            "held_out_psnr": float(np.mean(psnrs))}  # fmt: skip
+    return {
+        "lever": lever,
+        "method": method,
+        "config": config,
+        "train_seconds": trainer.train_seconds,
+        "held_out_psnr": float(np.mean(psnrs)),
+    }
 
 
 def main(args: Args) -> None:
@@ -80,16 +94,24 @@ def main(args: Args) -> None:
     with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn")) as pool:
         rows = list(pool.map(train_one, jobs))
     base = {r["method"]: r for r in rows if r["lever"] == "defaults"}
-    lines = ["# Speed levers of the grid field: time against held-out quality", "",
-             f"`python benchmarks/bench_speed_levers.py --config {args.config}`: lego, configuration {args.config}, "
-             f"100 px, 600 steps of 1024 rays, 64 samples, {args.workers} runs at a time with one thread each, on the "
-             "2-core machine. Held-out PSNR: the mean over 20 views of the orbit's second turn (indices 100-195, "
-             "every fifth), which the protocol never uses; the unobserved test views are not looked at.", "",
-             "| method | lever | training (s) | speed-up | held-out PSNR (dB) | change (dB) |", "|---|---|---|---|---|---|"]  # fmt: skip
+    lines = [
+        "# Speed levers of the grid field: time against held-out quality",
+        "",
+        f"`python benchmarks/bench_speed_levers.py --config {args.config}`: lego, configuration {args.config}, "
+        f"100 px, 600 steps of 1024 rays, 64 samples, {args.workers} runs at a time with one thread each, on the "
+        "2-core machine. Held-out PSNR: the mean over 20 views of the orbit's second turn (indices 100-195, "
+        "every fifth), which the protocol never uses; the unobserved test views are not looked at.",
+        "",
+        "| method | lever | training (s) | speed-up | held-out PSNR (dB) | change (dB) |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in rows:
         b = base[r["method"]]
-        lines.append(f"| {r['method']} | {r['lever']} | {r['train_seconds']:.1f} | {b['train_seconds'] / r['train_seconds']:.2f}x "
-                     f"| {r['held_out_psnr']:.2f} | {r['held_out_psnr'] - b['held_out_psnr']:+.2f} |")  # fmt: skip
+        lines.append(
+            f"| {r['method']} | {r['lever']} | {r['train_seconds']:.1f} | "
+            f"{b['train_seconds'] / r['train_seconds']:.2f}x "
+            f"| {r['held_out_psnr']:.2f} | {r['held_out_psnr'] - b['held_out_psnr']:+.2f} |"
+        )
     write_json(args.out / "results.json", {"args": {**vars(args), "out": str(args.out)}, "rows": rows})
     write_text(args.out / "README.md", "\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -99,14 +99,19 @@ def mirrored_pixels(folder: Path) -> dict:
             covered[np.flatnonzero(vis)[dist < dep[r[vis], u[vis]] - 0.02]] = True  # in front of its surface
         covered &= np.isfinite(depth)
         beta2 = out["beta2"].reshape(-1)
-        masks = {"agrees": ~lies.reshape(-1), "lies, covered": lies.reshape(-1) & covered,
-                 "lies, not covered": lies.reshape(-1) & ~covered}  # fmt: skip
+        masks = {
+            "agrees": ~lies.reshape(-1),
+            "lies, covered": lies.reshape(-1) & covered,
+            "lies, not covered": lies.reshape(-1) & ~covered,
+        }
         for k, m in masks.items():
             classes[k].append(beta2[m])
             counts[k] += int(m.sum())
     total = sum(counts.values())
-    return {k: {"share": counts[k] / total, "beta2_median": float(np.median(np.concatenate(v))) if counts[k] else None}
-            for k, v in classes.items()}  # fmt: skip
+    return {
+        k: {"share": counts[k] / total, "beta2_median": float(np.median(np.concatenate(v))) if counts[k] else None}
+        for k, v in classes.items()
+    }
 
 
 def test_error_where_unsure(flip_folder: Path, bl_folder: Path) -> dict:
@@ -133,25 +138,49 @@ def main(args: Args) -> None:
     jobs: dict[tuple[str, int, str], dict] = {}
     for s in scenes:
         for n in configs:
-            base = TrainConfig(scene=s, config=n, res=args.res, steps=args.steps, no_rrd=True, images_every=0,
-                               mirror_plane=args.plane, unconfident_plane="use")  # fmt: skip
+            base = TrainConfig(
+                scene=s,
+                config=n,
+                res=args.res,
+                steps=args.steps,
+                no_rrd=True,
+                images_every=0,
+                mirror_plane=args.plane,
+                unconfident_plane="use",
+            )
             jobs[(s, n, "B/L")] = replace(base, method="bl", out=run_folder(args, s, n, "bl")).to_dict()
             for name, change in VARIANTS.items():
                 cfg = replace(base, method="flip+u", out=run_folder(args, s, n, name), **change)
                 jobs[(s, n, name)] = cfg.to_dict()
     with ProcessPoolExecutor(args.workers) as pool:
         metrics = dict(zip(jobs, pool.map(_train, jobs.values())))
-    results: dict = {"runs": {" / ".join(map(str, k)): {"psnr": m["psnr"], "iou": m.get("iou"), "psnr_object": m.get("psnr_object"),
-                                                         "plane": m.get("plane")} for k, m in metrics.items()}}  # fmt: skip
-    lines = ["# Where beta^2 rises, and what protects an asymmetric object", "",
-             f"`python benchmarks/bench_uncertainty.py --scenes {args.scenes} --configs {args.configs}`: {args.res} px, "
-             f"{args.steps} steps, grid field, 64 samples, one thread per run. Flip+U with the plane `{args.plane}` "
-             "forced (`--unconfident-plane use`) unless a row says otherwise.", "",
-             "## 1. Mirrored pixels: which lie, which an input contradicts, and their beta^2", "",
-             f"A mirrored pixel lies where |flipped - truth| > {LIE} (the ray caster renders the truth from the "
-             "mirrored camera). It is covered where the point it is about lies in space an input saw.", "",
-             "| scene | config | mirrored pixels that lie | of those, covered | beta^2 median: agrees / lies, covered / lies, not covered |",
-             "|---|---|---|---|---|"]  # fmt: skip
+    results: dict = {
+        "runs": {
+            " / ".join(map(str, k)): {
+                "psnr": m["psnr"],
+                "iou": m.get("iou"),
+                "psnr_object": m.get("psnr_object"),
+                "plane": m.get("plane"),
+            }
+            for k, m in metrics.items()
+        }
+    }
+    lines = [
+        "# Where beta^2 rises, and what protects an asymmetric object",
+        "",
+        f"`python benchmarks/bench_uncertainty.py --scenes {args.scenes} --configs {args.configs}`: {args.res} px, "
+        f"{args.steps} steps, grid field, 64 samples, one thread per run. Flip+U with the plane `{args.plane}` "
+        "forced (`--unconfident-plane use`) unless a row says otherwise.",
+        "",
+        "## 1. Mirrored pixels: which lie, which an input contradicts, and their beta^2",
+        "",
+        f"A mirrored pixel lies where |flipped - truth| > {LIE} (the ray caster renders the truth from the "
+        "mirrored camera). It is covered where the point it is about lies in space an input saw.",
+        "",
+        "| scene | config | mirrored pixels that lie | of those, covered "
+        "| beta^2 median: agrees / lies, covered / lies, not covered |",
+        "|---|---|---|---|---|",
+    ]
     part1, part2 = {}, {}
     for s in scenes:
         for n in configs:
@@ -160,17 +189,26 @@ def main(args: Args) -> None:
             med = " / ".join(f"{p[k]['beta2_median']:.3f}" if p[k]["beta2_median"] is not None else "-" for k in p)
             lie = p["lies, covered"]["share"] + p["lies, not covered"]["share"]
             lines.append(f"| {s} | {n} | {lie:.1%} | {p['lies, covered']['share'] / max(lie, 1e-9):.0%} | {med} |")
-    lines += ["", "## 2. Unobserved views: where Flip+U's extra error falls", "",
-              "| scene | config | share of the extra squared error (over B/L) where beta^2 is above its median in the object |",
-              "|---|---|---|"]
+    lines += [
+        "",
+        "## 2. Unobserved views: where Flip+U's extra error falls",
+        "",
+        "| scene | config "
+        "| share of the extra squared error (over B/L) where beta^2 is above its median in the object |",
+        "|---|---|---|",
+    ]
     for s in scenes:
         for n in configs:
             q = test_error_where_unsure(run_folder(args, s, n, next(iter(VARIANTS))), run_folder(args, s, n, "bl"))
             part2[f"{s} / {n}"] = q
             lines.append(f"| {s} | {n} | {q['extra_error_in_high_beta2']:.0%} |")
-    lines += ["", "## 3. Remedies: unobserved-view PSNR (dB), Flip+U variants against B/L", "",
-              "| variant | " + " | ".join(f"{s} {n}" for s in scenes for n in configs) + " | mean - B/L |",
-              "|---|" + "---|" * (len(scenes) * len(configs) + 1)]  # fmt: skip
+    lines += [
+        "",
+        "## 3. Remedies: unobserved-view PSNR (dB), Flip+U variants against B/L",
+        "",
+        "| variant | " + " | ".join(f"{s} {n}" for s in scenes for n in configs) + " | mean - B/L |",
+        "|---|" + "---|" * (len(scenes) * len(configs) + 1),
+    ]
     bl = [metrics[(s, n, "B/L")]["psnr"] for s in scenes for n in configs]
     for name in ["B/L", *VARIANTS]:
         ps = [metrics[(s, n, name)]["psnr"] for s in scenes for n in configs]

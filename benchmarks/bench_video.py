@@ -1,7 +1,8 @@
 """Video benchmark (a script, not a test): how long `flipviz video` takes for a 100-frame, 200 px
 video on this machine, for one run and for two (A/B), and the README's GIF of the unobserved side.
 
-    python benchmarks/bench_video.py [--runs RUN_BL RUN_FLIPU] [--out docs/results/video] [--gif assets/unobserved_bl_vs_flipu.gif]
+    python benchmarks/bench_video.py [--runs RUN_BL RUN_FLIPU] [--out docs/results/video]
+        [--gif assets/unobserved_bl_vs_flipu.gif]
 
 Without --runs it first trains the chair, configuration 1, with B/L and Flip+U at the defaults of
 `flipviz train` (600 steps, 100 px). Times are wall clock of `make_video` (opening the runs,
@@ -46,8 +47,15 @@ def timed(cfg: VideoConfig) -> dict:
     reader = imageio.get_reader(mp4)
     n, size = reader.count_frames(), reader.get_meta_data()["size"]
     reader.close()
-    return {"path": cfg.path, "runs": len(cfg.runs), "frames": n, "size": list(size), "seconds": round(seconds, 1),
-            "frames_per_s": round(n / seconds, 2), "mb": round(mp4.stat().st_size / 2**20, 2)}  # fmt: skip
+    return {
+        "path": cfg.path,
+        "runs": len(cfg.runs),
+        "frames": n,
+        "size": list(size),
+        "seconds": round(seconds, 1),
+        "frames_per_s": round(n / seconds, 2),
+        "mb": round(mp4.stat().st_size / 2**20, 2),
+    }
 
 
 def main(args: Args) -> None:
@@ -62,11 +70,21 @@ def main(args: Args) -> None:
         runs = list(args.runs)
     rows = [
         timed(VideoConfig(runs=[runs[1]], path="orbit", frames=args.frames, res=args.res, out=tmp / "orbit.mp4")),
-        timed(VideoConfig(runs=[runs[1]], path="unobserved", frames=args.frames, res=args.res, out=tmp / "unobserved.mp4")),
-        timed(VideoConfig(runs=runs, path="unobserved", frames=args.frames, res=args.res, out=tmp / "ab.mp4", gif=args.gif)),
+        timed(
+            VideoConfig(runs=[runs[1]], path="unobserved", frames=args.frames, res=args.res, out=tmp / "unobserved.mp4")
+        ),
+        timed(
+            VideoConfig(
+                runs=runs, path="unobserved", frames=args.frames, res=args.res, out=tmp / "ab.mp4", gif=args.gif
+            )
+        ),
     ]
-    machine = {"cpus": os.cpu_count(), "torch_threads": torch.get_num_threads(), "platform": platform.platform(),
-               "torch": torch.__version__}  # fmt: skip
+    machine = {
+        "cpus": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "platform": platform.platform(),
+        "torch": torch.__version__,
+    }
     write_json(args.out / "results.json", {"machine": machine, "runs": [str(r) for r in runs], "videos": rows})
     lines = [
         "# `flipviz video`: time for a 100-frame, 200 px video",
@@ -79,8 +97,11 @@ def main(args: Args) -> None:
         "| path | runs | frames | frame size | seconds | frames/s | MB |",
         "|---|---|---|---|---|---|---|",
     ]
-    lines += [f"| {r['path']} | {r['runs']} | {r['frames']} | {r['size'][0]} x {r['size'][1]} | {r['seconds']} | "
-              f"{r['frames_per_s']} | {r['mb']} |" for r in rows]  # fmt: skip
+    lines += [
+        f"| {r['path']} | {r['runs']} | {r['frames']} | {r['size'][0]} x {r['size'][1]} | {r['seconds']} | "
+        f"{r['frames_per_s']} | {r['mb']} |"
+        for r in rows
+    ]
     lines += ["", "The unobserved path is rounded so that a frame lands on every test view (8 views: 7 gaps).", ""]
     write_text(args.out / "README.md", "\n".join(lines))
     print("\n".join(lines))

@@ -33,8 +33,9 @@ import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
-from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
 from viser_client import ViserTestClient  # noqa: E402
+
+from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
 
 
 @dataclass
@@ -66,13 +67,20 @@ async def time_to_view(app: App, args: Args, min_width: int = 800) -> list[float
         for k in range(args.repeats):
             for i in range(15):  # a quick orbit, then stop
                 a = 0.9 * k + 0.03 * i
-                await c.send_camera(c0 + 1.6 * r * np.array([math.cos(a), math.sin(a), 0.6]), tuple(c0), size=args.canvas)
+                await c.send_camera(
+                    c0 + 1.6 * r * np.array([math.cos(a), math.sin(a), 0.6]), tuple(c0), size=args.canvas
+                )
                 await asyncio.sleep(1 / 30)
             n, t0 = len(c.messages), time.monotonic()
             m = await c.wait_for(
-                lambda m: m["type"] == "BackgroundImageMessage" and bool(m.get("rgb_data"))
-                and jpeg_width(m["rgb_data"]) >= min_width, timeout=30, start=n,
-            )  # fmt: skip
+                lambda m: (
+                    m["type"] == "BackgroundImageMessage"
+                    and bool(m.get("rgb_data"))
+                    and jpeg_width(m["rgb_data"]) >= min_width
+                ),
+                timeout=30,
+                start=n,
+            )
             times.append(time.monotonic() - t0)
             assert m is not None
             await asyncio.sleep(1.0)
@@ -88,8 +96,12 @@ def bake(app: App, repeats: int) -> dict:
         baked = app.trainer.point_cloud()
         splats, _ = app.preview.shown(baked)
         secs.append(time.perf_counter() - t)
-    return {"bake_ms_median": round(1000 * statistics.median(secs), 1), "cells": len(baked["points"]),
-            "splats": len(splats), "payload_mb": round(splats.nbytes / 2**20, 2)}  # fmt: skip
+    return {
+        "bake_ms_median": round(1000 * statistics.median(secs), 1),
+        "cells": len(baked["points"]),
+        "splats": len(splats),
+        "payload_mb": round(splats.nbytes / 2**20, 2),
+    }
 
 
 def browser_orbit(app: App, seconds: float) -> dict | None:
@@ -119,13 +131,17 @@ def browser_orbit(app: App, seconds: float) -> dict | None:
         ActionChains(d).release().perform()
         dt = time.monotonic() - t0
         frames = d.execute_script("return window.__frames;") - f0
-        return {"fps": round(frames / dt, 1), "server_render_jobs": app.worker.jobs_done - jobs0,
-                "server_render_s": round(app.worker.busy_s - busy0, 2)}  # fmt: skip
+        return {
+            "fps": round(frames / dt, 1),
+            "server_render_jobs": app.worker.jobs_done - jobs0,
+            "server_render_s": round(app.worker.busy_s - busy0, 2),
+        }
 
 
 def main(args: Args) -> dict:
-    cfg = AppConfig(scene="chair", no_rrd=True, port=0, checkpoint_every=0, eval_on_stop=False,
-                    out=Path(tempfile.mkdtemp()) / "run")  # fmt: skip
+    cfg = AppConfig(
+        scene="chair", no_rrd=True, port=0, checkpoint_every=0, eval_on_stop=False, out=Path(tempfile.mkdtemp()) / "run"
+    )
     app = App(cfg).start()
     res: dict = {}
     try:
@@ -143,7 +159,10 @@ def main(args: Args) -> dict:
         app.stop()
     for k in ("while_training_s", "paused_s"):
         v = res[k]
-        res[k.replace("_s", "_median_s")], res[k.replace("_s", "_max_s")] = round(statistics.median(v), 2), round(max(v), 2)
+        res[k.replace("_s", "_median_s")], res[k.replace("_s", "_max_s")] = (
+            round(statistics.median(v), 2),
+            round(max(v), 2),
+        )
     if args.client_phase_s > 0:
         import bench_app_clients
 

@@ -35,46 +35,64 @@ class Mutation:
 
 MUTATIONS = (
     Mutation(
-        "(a) the NLL is never applied (always MSE)", "flipviz/model/objective.py",
-        "if step < self.nll_start or not (bool(uncertain.any()) or everywhere):", "if True:",
+        "(a) the NLL is never applied (always MSE)",
+        "flipviz/model/objective.py",
+        "if step < self.nll_start or not (bool(uncertain.any()) or everywhere):",
+        "if True:",
     ),
     Mutation(
-        "(b) the MSE warm-up is removed", "flipviz/training/flip.py",
-        "nll_start = start + int(cfg.uncertainty_start * (cfg.steps - start))", "nll_start = start",
+        "(b) the MSE warm-up is removed",
+        "flipviz/training/flip.py",
+        "nll_start = start + int(cfg.uncertainty_start * (cfg.steps - start))",
+        "nll_start = start",
     ),
     Mutation(
-        "(c) the 2 beta_min^2 / 3 rescale is dropped", "flipviz/model/objective.py",
-        "return (2.0 * b2min * k / 3.0) * torch.where(", "return torch.where(",
+        "(c) the 2 beta_min^2 / 3 rescale is dropped",
+        "flipviz/model/objective.py",
+        "return (2.0 * b2min * k / 3.0) * torch.where(",
+        "return torch.where(",
     ),
     Mutation(
-        "(d) the density weight is forced to 0", "flipviz/training/flip.py",
-        "Objective(beta_min, cfg.density_weight,", "Objective(beta_min, 0.0,",
+        "(d) the density weight is forced to 0",
+        "flipviz/training/flip.py",
+        "Objective(beta_min, cfg.density_weight,",
+        "Objective(beta_min, 0.0,",
     ),
     Mutation(
-        "(e) beta^2 is detached in the renderer", "flipviz/model/renderer.py",
-        "wp * F.softplus(raw))", "wp * F.softplus(raw).detach())",
+        "(e) beta^2 is detached in the renderer",
+        "flipviz/model/renderer.py",
+        "wp * F.softplus(raw))",
+        "wp * F.softplus(raw).detach())",
     ),
     Mutation(
-        "(f) BARF's coarse-to-fine window pinned open", "flipviz/model/nerf_field.py",
-        "self.progress.fill_(step / max(total_steps, 1))", "self.progress.fill_(1.0)",
+        "(f) BARF's coarse-to-fine window pinned open",
+        "flipviz/model/nerf_field.py",
+        "self.progress.fill_(step / max(total_steps, 1))",
+        "self.progress.fill_(1.0)",
         ("tests/test_model.py",),
     ),
     Mutation(
-        "(g) the training-batch PSNR over the channels' sum", "flipviz/training/trainer.py",
+        "(g) the training-batch PSNR over the channels' sum",
+        "flipviz/training/trainer.py",
         '"psnr": psnr(float(((out["rgb"].detach() - target) ** 2).mean())),',
         '"psnr": psnr(float(((out["rgb"].detach() - target) ** 2).sum(-1).mean())),',
         ("tests/test_training.py::test_the_training_batch_psnr_averages_the_squared_error_over_rays_and_channels",),
     ),
     Mutation(
-        "(h) the reflect and lookat pose rules swapped", "flipviz/geometry/mirror.py",
-        'if pose == "reflect":', 'if pose == "lookat":', ("tests/test_geometry.py",),
+        "(h) the reflect and lookat pose rules swapped",
+        "flipviz/geometry/mirror.py",
+        'if pose == "reflect":',
+        'if pose == "lookat":',
+        ("tests/test_geometry.py",),
     ),
     Mutation(
-        "(i) the mirrored rays drawn before the mirrors join", "flipviz/training/flip.py",
-        "inputs_only = self.dropped_at is not None or step < self.start", "inputs_only = self.dropped_at is not None",
+        "(i) the mirrored rays drawn before the mirrors join",
+        "flipviz/training/flip.py",
+        "inputs_only = self.dropped_at is not None or step < self.start",
+        "inputs_only = self.dropped_at is not None",
         ("tests/test_plane_refine.py::test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join",),
     ),
-)  # fmt: skip
+)
 
 
 def apply(root: Path, m: Mutation) -> None:
@@ -100,8 +118,13 @@ def main(args: Args) -> int:
                 shutil.copytree(ROOT / d, root / d, ignore=shutil.ignore_patterns("__pycache__"))
             apply(root, m)
             env = dict(os.environ, PYTHONPATH=str(root))
-            r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", *(args.tests or m.tests)],
-                               cwd=root, env=env, capture_output=True, text=True)  # fmt: skip
+            r = subprocess.run(
+                [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", *(args.tests or m.tests)],
+                cwd=root,
+                env=env,
+                capture_output=True,
+                text=True,
+            )
             caught = r.returncode == 1
             last = (r.stdout.strip().splitlines() or ["(no output)"])[-1]
             print(f"{'caught  ' if caught else 'SURVIVED'} {m.name}: {last}", flush=True)

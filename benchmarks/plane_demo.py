@@ -76,7 +76,10 @@ class Frames(Observer):
     def frame(self, e: StepEvent) -> np.ndarray:
         true, plane = self.tr.scene.symmetry_plane, e.plane
         fig, (ax, im) = plt.subplots(1, 2, figsize=(6.4, 3.2), dpi=100)
-        for p, colour, label in ((true, palette.TRUE_PLANE, "true plane"), (plane, palette.MIRROR_PLANE, "training plane")):
+        for p, colour, label in (
+            (true, palette.TRUE_PLANE, "true plane"),
+            (plane, palette.MIRROR_PLANE, "training plane"),
+        ):
             t = np.cross([0.0, 0.0, 1.0], p.normal)[:2]
             t /= np.linalg.norm(t)
             ends = np.stack([p.point[:2] - 2.2 * t, p.point[:2] + 2.2 * t])
@@ -110,8 +113,16 @@ def main(cfg: DemoConfig) -> None:
         raise SystemExit(f"{cfg.scene} has no known symmetry plane")
     plane = turned_plane_arg(scene.symmetry_plane, cfg.turn_deg, cfg.offset)
     with tempfile.TemporaryDirectory() as tmp:
-        tcfg = TrainConfig(scene=cfg.scene, config=cfg.config, steps=cfg.steps, mirror_plane=plane, out=Path(tmp) / "run",
-                           no_rrd=True, images_every=0, checkpoint_every=0)  # fmt: skip
+        tcfg = TrainConfig(
+            scene=cfg.scene,
+            config=cfg.config,
+            steps=cfg.steps,
+            mirror_plane=plane,
+            out=Path(tmp) / "run",
+            no_rrd=True,
+            images_every=0,
+            checkpoint_every=0,
+        )
         tr = Trainer(tcfg, scene)
         frames = Frames(tr, cfg.frame_every)
         tr.add_observer(frames)
@@ -120,11 +131,22 @@ def main(cfg: DemoConfig) -> None:
     with atomic_path(cfg.out / "plane_demo.gif") as tmp_gif:
         iio.imwrite(tmp_gif, np.stack(frames.frames), extension=".gif", duration=150, loop=0)
     start = plane_error(tr.mirrors.plane, scene.symmetry_plane)
-    write_json(cfg.out / "plane_demo.json", {"scene": cfg.scene, "config": cfg.config, "mirror_plane": plane,
-               "start_error": start, "psnr": m.get("psnr"), "steps": frames.log})  # fmt: skip
+    write_json(
+        cfg.out / "plane_demo.json",
+        {
+            "scene": cfg.scene,
+            "config": cfg.config,
+            "mirror_plane": plane,
+            "start_error": start,
+            "psnr": m.get("psnr"),
+            "steps": frames.log,
+        },
+    )
     last = frames.log[-1]
-    print(f"{cfg.scene}: plane {start[0]:.2f}° / {start[1]:.3f} -> {last['error_deg']:.2f}° / {last['error_offset']:.3f} "
-          f"off the true plane; unobserved PSNR {m.get('psnr', float('nan')):.2f} dB; {cfg.out / 'plane_demo.gif'}")  # fmt: skip
+    print(
+        f"{cfg.scene}: plane {start[0]:.2f}° / {start[1]:.3f} -> {last['error_deg']:.2f}° / {last['error_offset']:.3f} "
+        f"off the true plane; unobserved PSNR {m.get('psnr', float('nan')):.2f} dB; {cfg.out / 'plane_demo.gif'}"
+    )
 
 
 if __name__ == "__main__":

@@ -1,13 +1,13 @@
 """The `flipviz` command line: one tyro CLI with a subcommand per tool.
 
-    flipviz train --scene chair --method flip+u --config 3
-    flipviz app --scene mug                  (same as `python app.py --scene mug`)
-    flipviz bench --scenes chair,lego --data-root path/to/nerf_synthetic
-    flipviz export-scene chair out/chair
-    flipviz export-scene chair-turned out/drive --trajectory driveby
-    flipviz video RUN [RUN_B] --path unobserved|orbit|keyframes.json [--gif out.gif]
-    flipviz compare RUN_A RUN_B [--serve]     (their Rerun recordings side by side)
-    flipviz report RUN                         (a self-contained HTML page of the run)
+flipviz train --scene chair --method flip+u --config 3
+flipviz app --scene mug                  (same as `python app.py --scene mug`)
+flipviz bench --scenes chair,lego --data-root path/to/nerf_synthetic
+flipviz export-scene chair out/chair
+flipviz export-scene chair-turned out/drive --trajectory driveby
+flipviz video RUN [RUN_B] --path unobserved|orbit|keyframes.json [--gif out.gif]
+flipviz compare RUN_A RUN_B [--serve]     (their Rerun recordings side by side)
+flipviz report RUN                         (a self-contained HTML page of the run)
 """
 
 from __future__ import annotations
@@ -18,9 +18,10 @@ import itertools
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Callable, Literal, Union
+from typing import Annotated, Literal, Union
 
 import tyro
 
@@ -75,28 +76,40 @@ def _run_train(cfg: TrainConfig) -> int:
             lp_s = f"{lp:.3f}" if isinstance(lp, float) else f"{lp} ({metrics.get('lpips_reason', '')})"
             print(
                 f"[flipviz] {metrics['status']}: unobserved views PSNR {metrics['psnr']:.2f} dB, "
-                f"SSIM {metrics['ssim']:.3f}, LPIPS {lp_s}, {metrics.get('train_seconds', 0):.0f} s, {metrics['steps']} steps"
+                f"SSIM {metrics['ssim']:.3f}, LPIPS {lp_s}, "
+                f"{metrics.get('train_seconds', 0):.0f} s, {metrics['steps']} steps"
             )
             if "iou" in metrics:
                 depth = f", depth error {metrics['depth_abs']:.3f}" if "depth_abs" in metrics else ""
-                print(f"[flipviz] the object: silhouette IoU {metrics['iou']:.3f}, PSNR inside it {metrics['psnr_object']:.2f} dB{depth}")
+                print(
+                    f"[flipviz] the object: silhouette IoU {metrics['iou']:.3f}, "
+                    f"PSNR inside it {metrics['psnr_object']:.2f} dB{depth}"
+                )
         elif metrics.get("message"):
             print(f"[flipviz] {metrics['status']}: {metrics['message']}")
         plane = metrics.get("plane", {})
         if "refined" in plane:
             err = ""
             if "refined_error_deg" in plane:  # the scene's true plane is known
-                err = (f"; off the true plane {plane['error_deg']:.2f}° / {plane['error_offset']:.3f} before, "
-                       f"{plane['refined_error_deg']:.2f}° / {plane['refined_error_offset']:.3f} after")  # fmt: skip
-            print(f"[flipviz] mirror plane refined during training: turned {plane['refined_change_deg']:.2f}°, "
-                  f"moved {plane['refined_change_offset']:.3f}{err}")  # fmt: skip
+                err = (
+                    f"; off the true plane {plane['error_deg']:.2f}° / {plane['error_offset']:.3f} before, "
+                    f"{plane['refined_error_deg']:.2f}° / {plane['refined_error_offset']:.3f} after"
+                )
+            print(
+                f"[flipviz] mirror plane refined during training: turned {plane['refined_change_deg']:.2f}°, "
+                f"moved {plane['refined_change_offset']:.3f}{err}"
+            )
         if plane.get("dropped_at") is not None:
-            print(f"[flipviz] mirrored views dropped at step {plane['dropped_at']}: they disagreed with the inputs "
-                  f"(disagreement {plane['disagreement']:.2f} > --disagreement-limit {cfg.disagreement_limit:g})"
-                  + ("; the field then trained afresh on the inputs alone, as B/L" if plane.get("restarted_at") else ""))  # fmt: skip
+            print(
+                f"[flipviz] mirrored views dropped at step {plane['dropped_at']}: they disagreed with the inputs "
+                f"(disagreement {plane['disagreement']:.2f} > --disagreement-limit {cfg.disagreement_limit:g})"
+                + ("; the field then trained afresh on the inputs alone, as B/L" if plane.get("restarted_at") else "")
+            )
         elif plane.get("trained") is False:
-            print(f"[flipviz] trained without mirrored views: the estimated plane's confidence is "
-                  f"{metrics['plane']['confidence']:.2f} (--unconfident-plane use keeps them)")  # fmt: skip
+            print(
+                f"[flipviz] trained without mirrored views: the estimated plane's confidence is "
+                f"{metrics['plane']['confidence']:.2f} (--unconfident-plane use keeps them)"
+            )
         if rerun is not None and rerun.opts.path is not None:
             print(f"[flipviz] recording: rerun {rerun.opts.path}")
         if rerun is not None and cfg.rerun_serve:
@@ -150,12 +163,22 @@ def parse_command(argv: list[str] | None) -> object:
     from flipviz.viz.video import VideoConfig
     from flipviz.viz.viser_app import AppConfig
 
-    commands = {"train": TrainConfig, "app": AppConfig, "bench": BenchConfig, "export-scene": ExportScene,
-                "video": VideoConfig, "compare": CompareConfig, "report": ReportConfig}  # fmt: skip
+    commands = {
+        "train": TrainConfig,
+        "app": AppConfig,
+        "bench": BenchConfig,
+        "export-scene": ExportScene,
+        "video": VideoConfig,
+        "compare": CompareConfig,
+        "report": ReportConfig,
+    }
 
     def parse(defaults: dict[type, object]) -> object:
-        union = tuple(Annotated[cls, tyro.conf.subcommand(name, default=defaults.get(cls, tyro.MISSING_NONPROP))] for name, cls in commands.items())
-        return _parsed(lambda: tyro.cli(Union[union], args=argv, description=__doc__))
+        union = tuple(
+            Annotated[cls, tyro.conf.subcommand(name, default=defaults.get(cls, tyro.MISSING_NONPROP))]
+            for name, cls in commands.items()
+        )
+        return _parsed(lambda: tyro.cli(Union[union], args=argv, description=__doc__))  # noqa: UP007 (a Union built at run time)
 
     cmd = parse({})
     if getattr(cmd, "preset", "fast") != "fast":

@@ -8,9 +8,10 @@ import os
 import re
 import shutil
 import uuid
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from flipviz.errors import UserError
 
@@ -63,7 +64,9 @@ def need_space(path: Path | str, nbytes: float, what: str) -> None:
     OSError and leave no readable file, so writers ask first."""
     free = free_bytes(path)
     if free < nbytes:
-        raise OSError(errno.ENOSPC, f"{what} needs about {nbytes / 1e6:.0f} MB, {free / 1e6:.0f} MB are free on that disk")
+        raise OSError(
+            errno.ENOSPC, f"{what} needs about {nbytes / 1e6:.0f} MB, {free / 1e6:.0f} MB are free on that disk"
+        )
 
 
 TEMP_NAME = re.compile(r"^\..+\.\d+-[0-9a-f]{8}\.tmp")  # atomic_path's temporary names
@@ -218,6 +221,8 @@ def inside_roots(path: Path | str, roots: list[Path], what: str) -> Path:
     resolved = [Path(r).expanduser().resolve() for r in roots]
     if not any(p == r or p.is_relative_to(r) for r in resolved):
         allowed = ", ".join(str(r) for r in sorted(set(resolved))) or "none"
-        raise UserError(f"{what} {str(path)!r} is outside the folders this app may open ({allowed}); "
-                        "start the app with --browse-root FOLDER to allow another")  # fmt: skip
+        raise UserError(
+            f"{what} {str(path)!r} is outside the folders this app may open ({allowed}); "
+            "start the app with --browse-root FOLDER to allow another"
+        )
     return p

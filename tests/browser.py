@@ -12,13 +12,19 @@ import shutil
 import socket
 import threading
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 FLAGS = (
-    "--headless=new", "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-    "--window-size=1600,1000", "--no-sandbox", "--disable-dev-shm-usage", "--hide-scrollbars",
-)  # fmt: skip
+    "--headless=new",
+    "--use-gl=angle",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--window-size=1600,1000",
+    "--no-sandbox",
+    "--disable-dev-shm-usage",
+    "--hide-scrollbars",
+)
 
 
 def _binary(*names: str) -> str | None:
@@ -95,7 +101,7 @@ class CountingProxy:
             with contextlib.suppress(OSError):
                 s.close()
 
-    def __enter__(self) -> "CountingProxy":
+    def __enter__(self) -> CountingProxy:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -125,4 +131,3 @@ def screenshot_png(driver, timeout: float = 300.0) -> bytes:
             return None
 
     return wait_until(attempt, timeout, every=1.0, what="a screenshot")
-

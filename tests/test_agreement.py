@@ -41,7 +41,9 @@ def test_the_disagreement_is_the_mirrored_over_the_input_error_on_the_object_onl
     out["opacity"][4:] = 0.9  # the same pixels rendered opaque: the render is of the object, so they count
     b = Agreement(torch.tensor([False, True]))
     b.update(out, target, view)
-    assert b.input == pytest.approx((0.1 + 0.1 + 3.0) / 3, rel=1e-4) and b.mirror == pytest.approx((0.4 + 0.4 + 0.3) / 3, rel=1e-4)
+    assert b.input == pytest.approx((0.1 + 0.1 + 3.0) / 3, rel=1e-4) and b.mirror == pytest.approx(
+        (0.4 + 0.4 + 0.3) / 3, rel=1e-4
+    )
 
 
 @pytest.fixture(scope="module")
@@ -50,8 +52,15 @@ def chair16():
 
 
 def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(tmp_path, chair16):
-    cfg = TrainConfig(scene="chair", res=16, steps=100, mirror_plane="scene", uncertainty_start=0.1, out=tmp_path / "run",
-                      disagreement_limit=2.0)  # fmt: skip
+    cfg = TrainConfig(
+        scene="chair",
+        res=16,
+        steps=100,
+        mirror_plane="scene",
+        uncertainty_start=0.1,
+        out=tmp_path / "run",
+        disagreement_limit=2.0,
+    )
     flip = build_run(cfg, chair16).flip
     first_mirror = min(flip.ts.mirror_ids)
     gen = torch.Generator().manual_seed(0)
@@ -82,10 +91,20 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
 def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_path, chair16):
     """--after-drop restart: at the drop a fresh field, seeded as B/L's, trains the inputs for the full
     steps, so the final field equals B/L's bit for bit; a checkpoint of it resumes (no beta head)."""
-    base = dict(scene="chair", res=16, steps=60, batch_rays=256, no_rrd=True, images_every=0, checkpoint_every=0,
-                eval_on_stop=False)  # fmt: skip
-    flip = Trainer(TrainConfig(method="flip+u", mirror_plane="scene", disagreement_limit=1.0, out=tmp_path / "flip",
-                               **base), chair16)  # fmt: skip
+    base = dict(
+        scene="chair",
+        res=16,
+        steps=60,
+        batch_rays=256,
+        no_rrd=True,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+    )
+    flip = Trainer(
+        TrainConfig(method="flip+u", mirror_plane="scene", disagreement_limit=1.0, out=tmp_path / "flip", **base),
+        chair16,
+    )
     steps = Steps()
     flip.add_observer(steps)
     m = flip.run()
@@ -127,8 +146,20 @@ def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
     """Flip+U with the plane x = 0 (the chair's true plane; it maps the mug's handle to where it is not),
     configuration 4, 32 px, at the limit measured for mirrors that train from step 0 (2.0; the default,
     3.25, is for mirrors that join after the plane is estimated from the run's field)."""
-    cfg = TrainConfig(scene=scene, config=4, res=32, steps=300, batch_rays=512, mirror_plane="official", no_rrd=True,
-                      images_every=0, checkpoint_every=0, eval_on_stop=False, out=tmp_path / scene, disagreement_limit=2.0)  # fmt: skip
+    cfg = TrainConfig(
+        scene=scene,
+        config=4,
+        res=32,
+        steps=300,
+        batch_rays=512,
+        mirror_plane="official",
+        no_rrd=True,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        out=tmp_path / scene,
+        disagreement_limit=2.0,
+    )
     tr = Trainer(cfg)
     steps = Steps()
     tr.add_observer(steps)
@@ -144,12 +175,16 @@ def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_pat
     assert chair["plane"]["dropped_at"] is None and chair["plane"]["trained"], chair["plane"]
     assert chair["plane"]["disagreement"] < 2.0
     at = mug["plane"]["dropped_at"]
-    assert at is not None and 60 < at < 300 and not mug["plane"]["trained"], mug["plane"]  # after the NLL starts (step 60)
+    assert at is not None and 60 < at < 300 and not mug["plane"]["trained"], mug[
+        "plane"
+    ]  # after the NLL starts (step 60)
     assert mug["plane"]["restarted_at"] == at and mug["steps"] == at + 300  # a fresh field on the inputs (--after-drop)
     assert mug["plane"]["disagreement"] > 2.0
     after = [e for e in mug_steps.events if e.step > at]
     assert after and all(e.scalars["mirrors_trained"] == 0.0 for e in after)
-    assert all(np.array_equal(e.mirror_c2w, after[0].mirror_c2w) for e in after)  # nothing mirrored moves after the drop
+    assert all(
+        np.array_equal(e.mirror_c2w, after[0].mirror_c2w) for e in after
+    )  # nothing mirrored moves after the drop
     curves = RunCurves.for_run(mug_steps.setup)
     for e in mug_steps.events:
         curves.add_step(e)

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 import tyro
+from viser_client import ViserTestClient
 
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
@@ -31,7 +32,6 @@ from flipviz.viz.viser_common import (
     upscale,
     visualize_output,
 )
-from viser_client import ViserTestClient
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,11 +39,22 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     cfg = AppConfig(
-        scene="chair", res=32, steps=100_000, batch_rays=256, no_rrd=True, port=0, log_every=2, images_every=40,
-        checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("run"), render_duty=0.5, view_width=128,
+        scene="chair",
+        res=32,
+        steps=100_000,
+        batch_rays=256,
+        no_rrd=True,
+        port=0,
+        log_every=2,
+        images_every=40,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        out=tmp_path_factory.mktemp("run"),
+        render_duty=0.5,
+        view_width=128,
         unconfident_plane="use",  # at 32 px the chair's estimate may be doubted: these tests need the mirrors
         disagreement_limit=float("inf"),  # and at 32 px the gate may drop them mid-training (a 100k-step run)
-    )  # fmt: skip
+    )
     a = App(cfg).start()  # the app's default plane, auto: the run starts after the estimate (~10-20 s idle)
     try:  # whatever happens, the app (and its 100k-step run) is stopped
         deadline = time.monotonic() + 600  # a generous bound: a busy machine makes the estimate slow
@@ -159,9 +170,13 @@ def test_novel_camera_render(app):
             expected = upscale(visualize_output(app.render(cam), "RGB"), 192)
             assert img.shape == expected.shape and np.abs(img.astype(float) - expected).mean() < 12.0
             await c.wait_for(
-                lambda m: m["type"] == "SceneNodeUpdateMessage" and m["name"] == f"{name}/frustum"
-                and m["updates"].get("_image_data"), start=n,
-            )  # fmt: skip
+                lambda m: (
+                    m["type"] == "SceneNodeUpdateMessage"
+                    and m["name"] == f"{name}/frustum"
+                    and m["updates"].get("_image_data")
+                ),
+                start=n,
+            )
 
     run(go())
 
@@ -206,9 +221,14 @@ def test_moving_the_plane_moves_the_mirrors(app):
             for k, cam in enumerate(expected):
                 # the preview frustum k ends up at the paper's initial mirrored pose for the new plane
                 await c.wait_for(
-                    lambda m: m["type"] == "SetPositionMessage" and m["name"] == f"/preview/{k}"
-                    and np.allclose(m["position"], cam.center, atol=1e-4), start=n, timeout=10,
-                )  # fmt: skip
+                    lambda m: (
+                        m["type"] == "SetPositionMessage"
+                        and m["name"] == f"/preview/{k}"
+                        and np.allclose(m["position"], cam.center, atol=1e-4)
+                    ),
+                    start=n,
+                    timeout=10,
+                )
             assert not np.allclose(expected[0].center, app.setup.cameras[len(inputs)].camera.center, atol=1e-3)
             await c.wait_gui("Restart with this plane")
 
@@ -230,12 +250,20 @@ def test_the_estimated_plane_is_shown_beside_the_dragged_one(app):
             await c.wait_for(lambda m: "Mirror-plane score against azimuth" in str(m))
             await c.click("Use estimated plane")
             await c.wait_for(
-                lambda m: m["type"] == "SetPositionMessage" and m["name"] == "/plane"
-                and np.allclose(m["position"], est.plane.point, atol=1e-4),
-            )  # fmt: skip
+                lambda m: (
+                    m["type"] == "SetPositionMessage"
+                    and m["name"] == "/plane"
+                    and np.allclose(m["position"], est.plane.point, atol=1e-4)
+                ),
+            )
             # the typed fields show the plane in use (issue 26: they never did)
-            await c.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == c.gui["Plane normal"]["uuid"]
-                             and np.allclose(m["updates"]["value"], est.plane.normal, atol=2e-3))  # fmt: skip
+            await c.wait_for(
+                lambda m: (
+                    m["type"] == "GuiUpdateMessage"
+                    and m["uuid"] == c.gui["Plane normal"]["uuid"]
+                    and np.allclose(m["updates"]["value"], est.plane.normal, atol=2e-3)
+                )
+            )
             # Estimate plane again on this run: answered at once, not a silent minutes-long re-estimate
             n = len(c.messages)
             await c.click("Estimate plane")
@@ -260,8 +288,9 @@ def test_mirror_consistency_scores_and_outputs(app):
                 lambda m: m["type"] == "GuiUpdateMessage" and "**mean**" in str(m["updates"].get("_markdown", "")),
                 start=n,
             )
-            last_col = [float(row.split("|")[-2].split()[0]) for row in m["updates"]["_markdown"].split("\n")
-                        if "_flip" in row]  # fmt: skip
+            last_col = [
+                float(row.split("|")[-2].split()[0]) for row in m["updates"]["_markdown"].split("\n") if "_flip" in row
+            ]
             cams = app.mirror.preview_cams if app.mirror.moved else None
             assert cams is not None and len(last_col) == len(cams) == 8
             for cam, gt, got in zip(cams, app.mirror.flipped, last_col):
@@ -301,11 +330,17 @@ def test_two_tabs_and_snap_to_view(app):
             assert not any(moved(m) for m in b.messages)  # only the clicker's camera moves
             uuid = a.gui["|error|"]["uuid"]
             await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid, start=n)
-            await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid
-                             and m["updates"].get("visible") is True, start=n)  # fmt: skip
+            await a.wait_for(
+                lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid and m["updates"].get("visible") is True,
+                start=n,
+            )
             # nothing in the way of the snapped view: no plane square, no sphere, no frustum at the camera
-            await a.wait_for(lambda m: m["type"] == "SetSceneNodeVisibilityMessage" and m["name"] == "/mirror_plane"
-                             and not m["visible"], start=n)  # fmt: skip
+            await a.wait_for(
+                lambda m: (
+                    m["type"] == "SetSceneNodeVisibilityMessage" and m["name"] == "/mirror_plane" and not m["visible"]
+                ),
+                start=n,
+            )
             drawn = a.visible_nodes()
             assert not drawn & {"/mirror_plane", "/run/true_plane/quad", "/run/sphere/mesh"}, sorted(drawn)
 
@@ -322,11 +357,19 @@ def test_two_tabs_and_snap_to_view(app):
             # leaving the view: the Views panel drops its images (it kept the old snapped view's)
             n = len(a.messages)
             await a.send_camera((4.0, 4.0, 3.0))
-            await a.wait_for(lambda m: m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid
-                             and m["updates"].get("visible") is False, start=n)  # fmt: skip
+            await a.wait_for(
+                lambda m: (
+                    m["type"] == "GuiUpdateMessage" and m["uuid"] == uuid and m["updates"].get("visible") is False
+                ),
+                start=n,
+            )
             await a.wait_for(lambda m: "You left" in str(m), start=n)
-            await a.wait_for(lambda m: m["type"] == "SetSceneNodeVisibilityMessage" and m["name"] == "/mirror_plane"
-                             and m["visible"], start=n)  # fmt: skip
+            await a.wait_for(
+                lambda m: (
+                    m["type"] == "SetSceneNodeVisibilityMessage" and m["name"] == "/mirror_plane" and m["visible"]
+                ),
+                start=n,
+            )
             assert {"/mirror_plane", "/run/true_plane/quad", "/run/sphere/mesh"} <= a.visible_nodes()
         await asyncio.sleep(0.5)
 
@@ -339,8 +382,18 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
     """The Compare tab: a finished run B beside the running A, through the real websocket protocol."""
     from flipviz.training.run import open_run, train
 
-    b_cfg = TrainConfig(scene="chair", method="bl", res=32, steps=40, batch_rays=256, n_samples=32, grid_res=(16, 24),
-                        mirror_plane="official", images_every=0, out=tmp_path / "b")  # fmt: skip
+    b_cfg = TrainConfig(
+        scene="chair",
+        method="bl",
+        res=32,
+        steps=40,
+        batch_rays=256,
+        n_samples=32,
+        grid_res=(16, 24),
+        mirror_plane="official",
+        images_every=0,
+        out=tmp_path / "b",
+    )
     train(b_cfg)
     b = open_run(tmp_path / "b")
     pos, size = (4.0, -4.0, 3.0), (96, 128)
@@ -417,9 +470,18 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             await c.click("Snap to view")
             cam = app.snap.views[key][2]
             wxyz, p = to_viser_pose(cam.c2w)  # as a browser does, this client reports the camera it was moved to
-            await c.send("ViewerCameraMessage", wxyz=tuple(map(float, wxyz)), position=tuple(map(float, p)), fov=cam.fov_y,
-                         near=0.01, far=100.0, image_height=480, image_width=640, look_at=(0.0, 0.0, 0.0),
-                         up_direction=(0.0, 0.0, 1.0))  # fmt: skip
+            await c.send(
+                "ViewerCameraMessage",
+                wxyz=tuple(map(float, wxyz)),
+                position=tuple(map(float, p)),
+                fov=cam.fov_y,
+                near=0.01,
+                far=100.0,
+                image_height=480,
+                image_width=640,
+                look_at=(0.0, 0.0, 0.0),
+                up_direction=(0.0, 0.0, 1.0),
+            )
             name = key
             t = time.monotonic()
             while name not in app.compare.scores:
@@ -653,9 +715,20 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
     so the Flip+U run trains on no mirrored view, and the Mirror tab says so and why."""
     from flipviz.viz import palette
 
-    cfg = AppConfig(scene="chair", res=24, steps=100_000, batch_rays=256, no_rrd=True, port=0, images_every=0,
-                    checkpoint_every=0, eval_on_stop=False, out=tmp_path / "run", view_width=64,
-                    unconfident_plane="drop")  # fmt: skip
+    cfg = AppConfig(
+        scene="chair",
+        res=24,
+        steps=100_000,
+        batch_rays=256,
+        no_rrd=True,
+        port=0,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        out=tmp_path / "run",
+        view_width=64,
+        unconfident_plane="drop",
+    )
     a = App(cfg).start()
     try:
         deadline = time.monotonic() + 120
@@ -754,7 +827,7 @@ def test_replaced_runs_keep_their_newest_checkpoints_within_the_budget(tmp_path)
     from flipviz.training.artifacts import prune_checkpoints
 
     runs = [tmp_path / f"run{i}" for i in range(4)]  # oldest first
-    for i, d in enumerate(runs):
+    for d in runs:
         d.mkdir()
         (d / "checkpoint.pt").write_bytes(b"x" * 100)
         (d / "metrics.json").write_text("{}")
@@ -835,9 +908,13 @@ def test_a_browser_cannot_name_folders_outside_the_roots_nor_oversize_values(app
             await c.set_value("Or a folder", "/etc")
             await until(lambda: app.compare.path_txt.value == "/etc", "the folder never arrived")
             await c.click("Load run B")
-            await until(lambda: "outside the folders this app may open" in app.compare.status_md.content,
-                        app.compare.status_md.content)  # fmt: skip
-            scene_dd = next(m for m in c.messages if m["type"] == "GuiDropdownMessage" and m["props"]["label"] == "Scene")
+            await until(
+                lambda: "outside the folders this app may open" in app.compare.status_md.content,
+                app.compare.status_md.content,
+            )
+            scene_dd = next(
+                m for m in c.messages if m["type"] == "GuiDropdownMessage" and m["props"]["label"] == "Scene"
+            )
             await c.send("GuiUpdateMessage", uuid=scene_dd["uuid"], updates={"value": "(a data folder)"})
             await c.set_value("Data folder", "/root/.ssh")
             await until(lambda: app.train.data_txt.value == "/root/.ssh", "the data folder never arrived")
@@ -849,7 +926,9 @@ def test_a_browser_cannot_name_folders_outside_the_roots_nor_oversize_values(app
             await until(lambda: view.gui["max_width"].value == 1920 and view.max_width == 1920, "not clamped")
             n = len(c.messages)
             await c.send_camera((4.0, -4.1, 3.0), size=(3000, 6000))
-            bg = await c.wait_for(lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"], start=n, timeout=60)
+            bg = await c.wait_for(
+                lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"], start=n, timeout=60
+            )
             assert jpeg(bg["rgb_data"]).shape[1] <= 1920 and view.max_width <= 1920
             await c.set_value("Configuration", "../../etc")  # not one of the options: put back
             await until(lambda: app.train.config_dd.value in [str(i) for i in range(1, 9)], "dropdown not guarded")
@@ -861,7 +940,14 @@ def test_every_colour_the_3d_view_draws_is_in_the_legend():
     """Issue 26: magenta (novel cameras, keyframes) and others were drawn but not in the legend."""
     from flipviz.viz import palette
 
-    drawn = {*palette.CAMERA.values(), palette.SPHERE, palette.PROBE, palette.MIRROR_PLANE, palette.TRUE_PLANE, palette.TRAJECTORY}
+    drawn = {
+        *palette.CAMERA.values(),
+        palette.SPHERE,
+        palette.PROBE,
+        palette.MIRROR_PLANE,
+        palette.TRUE_PLANE,
+        palette.TRAJECTORY,
+    }
     legend = {c for colours, _ in palette.LEGEND for c in colours}
     assert drawn <= legend, drawn - legend
     img = palette.legend_image()
@@ -898,8 +984,14 @@ def test_the_plane_chart_draws_a_peak_at_0_or_180_whole_in_the_middle():
 
     az = np.arange(0.0, 180.0, 2.0)
     d = (az - 179.0 + 90.0) % 180.0 - 90.0  # circular distance to 179 degrees
-    est = PlaneEstimate(Plane(np.zeros(3), np.array([np.cos(np.radians(179.0)), np.sin(np.radians(179.0)), 0.0])),
-                        0.6, 0.9, 0.5, list(az), list(np.exp(-(d / 8.0) ** 2)))  # fmt: skip
+    est = PlaneEstimate(
+        Plane(np.zeros(3), np.array([np.cos(np.radians(179.0)), np.sin(np.radians(179.0)), 0.0])),
+        0.6,
+        0.9,
+        0.5,
+        list(az),
+        list(np.exp(-((d / 8.0) ** 2))),
+    )
     img = score_chart(est, np.array([0.0, 0.0, 1.0])).astype(int)
     curve = np.abs(img - np.array(palette.MIRROR_PLANE)).sum(-1) < 60
     rows, cols = np.nonzero(curve)
@@ -925,7 +1017,10 @@ def test_bulk_gui_updates_run_on_viser_s_loop_thread():
 
         loop_thread = asyncio.run_coroutine_threadsafe(ident(), server.get_event_loop()).result(10)
         seen: list[int] = []
-        threads = [threading.Thread(target=lambda: seen.append(on_gui_thread(server, threading.get_ident, 10))) for _ in range(4)]
+        threads = [
+            threading.Thread(target=lambda: seen.append(on_gui_thread(server, threading.get_ident, 10)))
+            for _ in range(4)
+        ]
         for t in threads:
             t.start()
         for t in threads:
@@ -1011,8 +1106,11 @@ def test_beta2_views_colour_the_object_and_leave_empty_space_as_rendered():
 
     rgb = np.ones((2, 2, 3), np.float32)
     rgb[0, 0] = (0.2, 0.3, 0.4)  # the object's pixel
-    out = {"rgb": rgb, "opacity": np.array([[1.0, 0.0], [0.0, 0.5]], np.float32),
-           "beta2": np.array([[0.08, 0.01], [0.01, 0.05]], np.float32)}  # fmt: skip
+    out = {
+        "rgb": rgb,
+        "opacity": np.array([[1.0, 0.0], [0.0, 0.5]], np.float32),
+        "beta2": np.array([[0.08, 0.01], [0.01, 0.05]], np.float32),
+    }
     img = visualize_output(out, "beta^2", ScalarView())
     scale = palette.colormap(out["beta2"], *palette.BETA2_RANGE)
     assert np.array_equal(img[0, 0], scale[0, 0])  # opaque: the uncertainty's colour
@@ -1036,7 +1134,9 @@ def test_the_live_preview_is_drawn_as_gaussian_splats_one_per_cell(app):
             app.preview.request()
             await c.wait_for(lambda m: splats(m) is not None, timeout=120)  # a field with opaque cells
             app.trainer.pause()  # the field holds still
-            await asyncio.to_thread(app.trainer.render, app.setup.cameras[0].camera, ("rgb",))  # the step in flight ends
+            await asyncio.to_thread(
+                app.trainer.render, app.setup.cameras[0].camera, ("rgb",)
+            )  # the step in flight ends
             app.preview.request()  # a bake of the paused field, then none (the step does not change)
             t = time.monotonic()
             while (app.preview.baked or {}).get("step") != app.preview.step():

@@ -58,7 +58,7 @@ def find_cycle(g: dict[str, set[str]]) -> list[str] | None:
         stack.append(m)
         for n in sorted(g[m]):
             if state.get(n) == 1:
-                return stack[stack.index(n):] + [n]
+                return stack[stack.index(n) :] + [n]
             if n not in state and (c := visit(n)):
                 return c
         stack.pop()
@@ -84,6 +84,10 @@ def test_no_import_cycles():
 
 
 def test_imports_only_run_down_the_layers():
-    bad = [f"{m} ({LAYERS[layer(m)] or 'base'}) imports {n} ({LAYERS[layer(n)] or 'base'})"
-           for m, ns in graph().items() for n in ns if layer(n) > layer(m)]  # fmt: skip
+    bad = [
+        f"{m} ({LAYERS[layer(m)] or 'base'}) imports {n} ({LAYERS[layer(n)] or 'base'})"
+        for m, ns in graph().items()
+        for n in ns
+        if layer(n) > layer(m)
+    ]
     assert not bad, "\n".join(bad)

@@ -34,8 +34,19 @@ class Empty:
 
 def render_empty(background: str, rgb: torch.Tensor | None = None) -> torch.Tensor:
     o, d = torch.tensor([[0.0, 0.0, 3.0], [5.0, 5.0, 3.0]]), torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
-    out = render_rays(Empty(), o, d, bbox=torch.as_tensor(BOX, dtype=torch.float32), near=0.5, far=6.0, n_samples=8,
-                      training=False, beta_min=B_MIN, background=background, background_rgb=rgb)  # fmt: skip
+    out = render_rays(
+        Empty(),
+        o,
+        d,
+        bbox=torch.as_tensor(BOX, dtype=torch.float32),
+        near=0.5,
+        far=6.0,
+        n_samples=8,
+        training=False,
+        beta_min=B_MIN,
+        background=background,
+        background_rgb=rgb,
+    )
     return out["rgb"]  # ray 0 crosses the box, ray 1 misses it
 
 
@@ -48,7 +59,9 @@ def test_background_last_shows_the_fields_far_colour_where_white_shows_white():
 def test_a_learned_background_is_trained():
     rgb = render_empty("learned", torch.tensor([0.3, 0.5, 0.7]))
     assert torch.allclose(rgb, torch.tensor([[0.3, 0.5, 0.7]] * 2))  # on the box's empty ray and on a miss
-    m = RadianceModel(ModelConfig(GridConfig(grid_res=(16,), upsample_at=()), background="learned"), BOX, 0.5, 6.0, False)
+    m = RadianceModel(
+        ModelConfig(GridConfig(grid_res=(16,), upsample_at=()), background="learned"), BOX, 0.5, 6.0, False
+    )
     opt = m.make_optimizer()
     o, d = torch.tensor([[5.0, 5.0, 3.0]]).expand(64, 3), torch.tensor([[0.0, 0.0, -1.0]]).expand(64, 3)
     for step in range(200):  # rays that miss the box see only the background: fit it to grey
@@ -65,8 +78,11 @@ def batch():
     """Three certain rays (B/L) with densities, and the same three with the first two uncertain."""
     rgb = torch.tensor([[0.2, 0.4, 0.6], [1.0, 1.0, 1.0], [0.5, 0.5, 0.5]], requires_grad=True)
     target = torch.tensor([[0.3, 0.4, 0.2], [0.5, 1.0, 1.0], [0.1, 0.5, 0.7]])
-    out = {"rgb": rgb, "beta2": torch.tensor([0.04, 0.5, B_MIN**2], requires_grad=True),
-           "sigma_mean": torch.tensor([2.0, 1.0, 3.0], requires_grad=True)}  # fmt: skip
+    out = {
+        "rgb": rgb,
+        "beta2": torch.tensor([0.04, 0.5, B_MIN**2], requires_grad=True),
+        "sigma_mean": torch.tensor([2.0, 1.0, 3.0], requires_grad=True),
+    }
     return out, target
 
 
@@ -95,10 +111,13 @@ def test_the_nlls_optimal_variance_is_the_summed_or_the_mean_error(channels, k):
     assert out["beta2"].grad.abs().max().item() < 1e-6
     certain = torch.zeros(3, dtype=torch.bool)  # a certain ray still weighs its per-channel MSE
     assert Objective(B_MIN, 0.0, channels=channels)(out, target, certain, step=0).item() == pytest.approx(
-        ((out["rgb"] - target) ** 2).mean().item(), rel=1e-6)  # fmt: skip
+        ((out["rgb"] - target) ** 2).mean().item(), rel=1e-6
+    )
 
 
-@pytest.mark.parametrize("field", [GridConfig(grid_res=(16,), upsample_at=()), NerfConfig(depth=2, width=32, pe=4, dir_pe=2)])
+@pytest.mark.parametrize(
+    "field", [GridConfig(grid_res=(16,), upsample_at=()), NerfConfig(depth=2, width=32, pe=4, dir_pe=2)]
+)
 def test_beta_from_position_does_not_see_the_view_direction(field):
     torch.manual_seed(0)
     x = torch.rand(64, 3) * 1.6 - 0.8
@@ -129,8 +148,19 @@ def test_a_run_in_the_authors_setting_trains_saves_and_resumes(tmp_path, backgro
     from flipviz.training.checkpoint import load_checkpoint
     from flipviz.training.trainer import Trainer
 
-    kw = dict(scene="chair", res=24, steps=20, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, no_rrd=True,
-              mirror_plane="official", background=background, out=tmp_path / "run")  # fmt: skip
+    kw = dict(
+        scene="chair",
+        res=24,
+        steps=20,
+        batch_rays=256,
+        n_samples=32,
+        grid_res=(24,),
+        images_every=0,
+        no_rrd=True,
+        mirror_plane="official",
+        background=background,
+        out=tmp_path / "run",
+    )
     m = Trainer(preset_config("authors", **kw)).run()
     assert m["status"] == "finished" and math.isfinite(m["psnr"])
     assert load_checkpoint(tmp_path / "run")["config"]["background"] == background
@@ -140,7 +170,7 @@ def test_a_run_in_the_authors_setting_trains_saves_and_resumes(tmp_path, backgro
 
 def test_switching_presets_resets_what_the_old_one_chose_and_keeps_your_own_settings():
     """with_preset (the app's Restart / Compare "Setting"): authors -> fast gives flipviz's defaults back."""
-    from flipviz.training.config import AUTHORS_PRESET, TrainConfig, with_preset
+    from flipviz.training.config import AUTHORS_PRESET, with_preset
 
     mine = preset_config("authors", n_samples=32, background="learned")  # two settings of my own
     assert mine.density_on == "all" and mine.background == "learned"

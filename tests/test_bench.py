@@ -16,6 +16,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
+from test_exports import parse_page
 
 from flipviz.bench import BenchConfig, plan, run_bench
 from flipviz.bench.config import parse_configs, parse_methods
@@ -24,12 +25,32 @@ from flipviz.bench.runner import resolve_scene
 from flipviz.bench.tables import render_markdown
 from flipviz.data.dataset import DatasetError
 from flipviz.training.config import TrainConfig
-from test_exports import parse_page
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
-TINY = ["--methods", "bl,flip+u", "--configs", "1,2", "--res", "24", "--steps", "30", "--batch-rays", "256", "--mirror-plane", "official",
-        "--grid-res", "16", "24", "--n-samples", "32", "--cpus-per-run", "1", "--workers", "2"]  # fmt: skip
+TINY = [
+    "--methods",
+    "bl,flip+u",
+    "--configs",
+    "1,2",
+    "--res",
+    "24",
+    "--steps",
+    "30",
+    "--batch-rays",
+    "256",
+    "--mirror-plane",
+    "official",
+    "--grid-res",
+    "16",
+    "24",
+    "--n-samples",
+    "32",
+    "--cpus-per-run",
+    "1",
+    "--workers",
+    "2",
+]
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +77,9 @@ def _check_outputs(out: Path, n_runs: int) -> list[dict]:
     table = (out / "table.md").read_text()
     headline = table.split("## Table III")[1].split("\n## ")[0]  # the object's scores stand beside PSNR
     assert "| Scene | Method | PSNR | silhouette IoU | PSNR in the object | depth error | SSIM | LPIPS |" in headline
-    assert "| chair | B/L | " in headline and "| chair | Flip+U | " in headline and "| chair | white image | " in headline
+    assert (
+        "| chair | B/L | " in headline and "| chair | Flip+U | " in headline and "| chair | white image | " in headline
+    )
 
     chart = plt.imread(str(out / "psnr_chart.png"))
     assert chart.ndim == 3 and chart.shape[0] > 100
@@ -85,9 +108,21 @@ def test_bench_resumes_after_kill_and_records_failures(tmp_path: Path, cache: Pa
     out = tmp_path / "bench"
     _broken_scene(tmp_path / "data")
     env = dict(os.environ, FLIPVIZ_CACHE=str(cache), PYTHONPATH=str(ROOT))
-    cmd = [sys.executable, "-m", "flipviz.bench", "--scenes", "chair,broken", "--data-root", str(tmp_path / "data"),
-           "--out", str(out), *TINY]  # fmt: skip
-    p = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "flipviz.bench",
+        "--scenes",
+        "chair,broken",
+        "--data-root",
+        str(tmp_path / "data"),
+        "--out",
+        str(out),
+        *TINY,
+    ]
+    p = subprocess.Popen(
+        cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True
+    )
     try:
         # A worker process dies under a run (as if out of memory): the run is failed, the bench goes on.
         started = _wait_for(lambda: sorted((out / "runs").glob("*/started.json")), p, "a run started")[0]
@@ -134,7 +169,15 @@ def test_bench_resumes_after_kill_and_records_failures(tmp_path: Path, cache: Pa
     assert {r["status"] for r in rows if r["scene"] == "broken"} == {"failed"}
     assert "## Failed runs" in (out / "table.md").read_text()
     # The reports can be rebuilt from the run folders alone, without training.
-    for f in ("results.csv", "results.json", "table.md", "psnr_chart.png", "grid_chair.png", "report.html", "gain_vs_coverage.png"):
+    for f in (
+        "results.csv",
+        "results.json",
+        "table.md",
+        "psnr_chart.png",
+        "grid_chair.png",
+        "report.html",
+        "gain_vs_coverage.png",
+    ):
         (out / f).unlink()
     run_bench(BenchConfig(methods="bl,flip+u", configs="1,2", steps=30, out=out, report_only=True))
     _check_outputs(out, 8)
@@ -160,8 +203,19 @@ def test_bench_runs_use_the_train_defaults():
 def test_flip_runs_of_a_configuration_share_one_estimated_plane(tmp_path: Path, cache: Path, monkeypatch) -> None:
     """--mirror-plane auto (the default): Flip estimates the plane, Flip+U reads it (the same, no second fit)."""
     monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
-    cfg = BenchConfig(scenes="chair", methods="flip,flip+u", configs="1", res=24, steps=20, batch_rays=256,
-                      grid_res=(16,), n_samples=32, out=tmp_path / "b", cpus_per_run=1, quiet=True)  # fmt: skip
+    cfg = BenchConfig(
+        scenes="chair",
+        methods="flip,flip+u",
+        configs="1",
+        res=24,
+        steps=20,
+        batch_rays=256,
+        grid_res=(16,),
+        n_samples=32,
+        out=tmp_path / "b",
+        cpus_per_run=1,
+        quiet=True,
+    )
     res = _results(run_bench(cfg))
     assert sorted(v["status"] for v in res.values()) == ["ok", "ok"], res
     (shared,) = (tmp_path / "b" / "planes").glob("chair-c1-*.json")
@@ -174,8 +228,19 @@ def test_a_flip_run_that_drops_its_mirrors_takes_its_b_l_twins_result(tmp_path: 
     bench takes B/L's finished result instead of training it twice: the same scores (checked against
     a Flip run that does train), the run's own plane report, and the test renders."""
     monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
-    kw = dict(scenes="chair", configs="1", res=24, steps=20, batch_rays=256, grid_res=(16,), n_samples=32,
-              workers=1, cpus_per_run=1, quiet=True, unconfident_plane="drop")  # fmt: skip
+    kw = dict(
+        scenes="chair",
+        configs="1",
+        res=24,
+        steps=20,
+        batch_rays=256,
+        grid_res=(16,),
+        n_samples=32,
+        workers=1,
+        cpus_per_run=1,
+        quiet=True,
+        unconfident_plane="drop",
+    )
     res = _results(run_bench(BenchConfig(methods="bl,flip,flip+u", out=tmp_path / "b", **kw)))
     by = {v["method"]: v for v in res.values()}
     assert all(v["status"] == "ok" for v in res.values()), res
@@ -198,10 +263,17 @@ def test_a_flip_run_that_drops_its_mirrors_takes_its_b_l_twins_result(tmp_path: 
     from flipviz.training.run import make_trainer
 
     spec = plan(BenchConfig(methods="flip", **kw))[0]
-    keeps = make_trainer(spec.train_config(BenchConfig(methods="flip", mirror_plane="official", **kw), tmp_path / "keeps"))
+    keeps = make_trainer(
+        spec.train_config(BenchConfig(methods="flip", mirror_plane="official", **kw), tmp_path / "keeps")
+    )
     keeps.close()
     assert keeps.spec.mirrors
-    assert _finished_twin(RunTask("k", str(tmp_path / "keeps"), {}, {}, twin=str(tmp_path / "b" / "runs" / bl["key"])), keeps) is None
+    assert (
+        _finished_twin(
+            RunTask("k", str(tmp_path / "keeps"), {}, {}, twin=str(tmp_path / "b" / "runs" / bl["key"])), keeps
+        )
+        is None
+    )
 
 
 def test_bench_on_ray(tmp_path: Path, cache: Path, monkeypatch) -> None:
@@ -209,8 +281,18 @@ def test_bench_on_ray(tmp_path: Path, cache: Path, monkeypatch) -> None:
     monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        cfg = BenchConfig(scenes="chair", methods="bl,flip+u", configs="1", res=24, steps=30, batch_rays=256,
-                          grid_res=(16, 24), n_samples=32, out=tmp_path / "ray", executor="ray")  # fmt: skip
+        cfg = BenchConfig(
+            scenes="chair",
+            methods="bl,flip+u",
+            configs="1",
+            res=24,
+            steps=30,
+            batch_rays=256,
+            grid_res=(16, 24),
+            n_samples=32,
+            out=tmp_path / "ray",
+            executor="ray",
+        )
         out = run_bench(cfg)
     finally:
         ray.shutdown()
@@ -235,11 +317,21 @@ def test_plan_keys_and_ablation(tmp_path: Path) -> None:
     abl = plan(BenchConfig(scenes="chair", methods="all", configs="1-8", ablation=True))
     assert len(abl) == 8 * 7
     assert {(s.method, s.ba) for s in abl if s.method.startswith("flip")} == {
-        ("flip", True), ("flip", False), ("flip+u", True), ("flip+u", False)
+        ("flip", True),
+        ("flip", False),
+        ("flip+u", True),
+        ("flip+u", False),
     }
     # Keys cover everything that changes the result (steps, res, seed, data path) ...
     s = specs[0]
-    changes = (dict(steps=101), dict(res=33), dict(seed=1), dict(batch_rays=128), dict(field="nerf"), dict(grid_res=(8,)))
+    changes = (
+        dict(steps=101),
+        dict(res=33),
+        dict(seed=1),
+        dict(batch_rays=128),
+        dict(field="nerf"),
+        dict(grid_res=(8,)),
+    )
     for change in changes:
         other = BenchConfig(**{**cfg.__dict__, **change})
         assert s.key(other) != s.key(cfg), change
@@ -249,8 +341,16 @@ def test_plan_keys_and_ablation(tmp_path: Path) -> None:
     # B/L starts first (a Flip run that drops its mirrors takes its result), Flip+U last (the Flip runs
     # of a configuration share one estimated plane: one file per configuration).
     assert [x.method for x in specs[:5]] == ["bl", "bl+u", "flip", "upper", "flip+u"]
-    files = {(x.scene, x.config, x.method): x.train_config(cfg, tmp_path / x.key(cfg), tmp_path / "planes").plane_file for x in specs}
-    assert files[("chair", 1, "flip")] == files[("chair", 1, "flip+u")] != files[("chair", 2, "flip")] != files[("mug", 2, "flip")]
+    files = {
+        (x.scene, x.config, x.method): x.train_config(cfg, tmp_path / x.key(cfg), tmp_path / "planes").plane_file
+        for x in specs
+    }
+    assert (
+        files[("chair", 1, "flip")]
+        == files[("chair", 1, "flip+u")]
+        != files[("chair", 2, "flip")]
+        != files[("mug", 2, "flip")]
+    )
     assert files[("chair", 1, "bl")] is None and files[("chair", 1, "flip")].parent == tmp_path / "planes"
     official = BenchConfig(**{**cfg.__dict__, "mirror_plane": "official"})
     assert specs[0].train_config(official, tmp_path, tmp_path / "planes").plane_file is None
@@ -275,15 +375,33 @@ def test_parsing_and_scene_errors(tmp_path: Path) -> None:
 
 def test_table_shows_paper_numbers_for_nerf_synthetic_scenes() -> None:
     def row(scene, data, method, config, psnr):
-        return {"key": f"{scene}{method}{config}", "scene": scene, "data": data, "method": method, "config": config,
-                "ba": method.startswith("flip"), "uncertainty": method.endswith("+u"), "default_flags": True,
-                "status": "ok", "psnr": psnr, "ssim": 0.5, "lpips": "unavailable", "train_seconds": 10.0}  # fmt: skip
+        return {
+            "key": f"{scene}{method}{config}",
+            "scene": scene,
+            "data": data,
+            "method": method,
+            "config": config,
+            "ba": method.startswith("flip"),
+            "uncertainty": method.endswith("+u"),
+            "default_flags": True,
+            "status": "ok",
+            "psnr": psnr,
+            "ssim": 0.5,
+            "lpips": "unavailable",
+            "train_seconds": 10.0,
+        }
 
-    rows = [row("lego", "/d/lego", "bl", 1, 10.0), row("lego", "/d/lego", "bl", 2, 12.0),
-            row("lego", "/d/lego", "flip+u", 1, 15.0), row("chair", "", "bl", 1, 20.0)]  # fmt: skip
+    rows = [
+        row("lego", "/d/lego", "bl", 1, 10.0),
+        row("lego", "/d/lego", "bl", 2, 12.0),
+        row("lego", "/d/lego", "flip+u", 1, 15.0),
+        row("chair", "", "bl", 1, 20.0),
+    ]
     md = render_markdown(rows, BenchConfig(scenes="lego,chair", methods="bl,flip+u", configs="1,2"))
     line = lambda start: next(ln for ln in md.splitlines() if ln.startswith(start))  # noqa: E731
-    assert line("| lego | B/L | ").startswith("| lego | B/L | 11.00 (11.57) |")  # mean of configurations, paper beside it
+    assert line("| lego | B/L | ").startswith(
+        "| lego | B/L | 11.00 (11.57) |"
+    )  # mean of configurations, paper beside it
     assert line("| lego | Flip+U").startswith("| lego | Flip+U †1/2 | 15.00 (17.79) |")  # one of two configurations
     assert "(" not in line("| chair | B/L")  # built-in chair: no paper numbers
     assert line("| **Mean** | B/L | ").startswith("| **Mean** | B/L | 15.50 |")  # over scenes: (11 + 20) / 2
@@ -295,13 +413,33 @@ def test_per_config_table_reports_the_flip_runs_coverage_and_plane() -> None:
     from flipviz.bench.tables import per_config_table
 
     def row(method: str, config: int, psnr: float, angle: float, plane: dict | None) -> dict:
-        m = {"coverage": {"mean_angle_deg": angle, "within_30": 1.0 if angle < 30 else 0.0}} | ({"plane": plane} if plane else {})
-        return {"scene": "mug", "method": method, "config": config, "default_flags": True, "status": "ok", "psnr": psnr, "metrics": m}
+        m = {"coverage": {"mean_angle_deg": angle, "within_30": 1.0 if angle < 30 else 0.0}} | (
+            {"plane": plane} if plane else {}
+        )
+        return {
+            "scene": "mug",
+            "method": method,
+            "config": config,
+            "default_flags": True,
+            "status": "ok",
+            "psnr": psnr,
+            "metrics": m,
+        }
 
-    refined = {"confidence": 0.3, "trained": True, "error_deg": 1.25, "error_offset": 0.04, "refined_error_deg": 0.1,
-               "refined_error_offset": 0.002}  # fmt: skip
-    rows = [row("bl", 1, 20.0, 1.0, None), row("flip+u", 1, 20.0, 45.0, {"confidence": 0.1, "trained": False}),
-            row("bl", 2, 20.0, 1.0, None), row("flip+u", 2, 21.5, 2.0, refined)]  # fmt: skip
+    refined = {
+        "confidence": 0.3,
+        "trained": True,
+        "error_deg": 1.25,
+        "error_offset": 0.04,
+        "refined_error_deg": 0.1,
+        "refined_error_offset": 0.002,
+    }
+    rows = [
+        row("bl", 1, 20.0, 1.0, None),
+        row("flip+u", 1, 20.0, 45.0, {"confidence": 0.1, "trained": False}),
+        row("bl", 2, 20.0, 1.0, None),
+        row("flip+u", 2, 21.5, 2.0, refined),
+    ]
     lines = per_config_table(rows, ["bl", "flip+u"]).splitlines()
     assert lines[2].endswith("| +0.00 | - | 45.0 | 0% | 0.100 (dropped) | - |"), lines[2]
     assert lines[3].endswith("| +1.50 | - | 2.0 | 100% | 0.300 | 1.25° / 0.040 -> 0.10° / 0.002 |"), lines[3]
@@ -311,8 +449,17 @@ def test_paper_numbers_match_protocol_and_tex() -> None:
     protocol, tex = SHARED / "PROTOCOL.md", SHARED / "paper" / "just_flip.tex"
     if not protocol.is_file() or not tex.is_file():
         pytest.skip("../shared (protocol and paper) not present in this checkout")
-    names = {"Chairs": "Chairs", "Lego": "Lego", "Materials": "Materials", "Ship": "Ship", "Drum": "Drum",
-             "Ficus": "Ficus", "Hotdog": "Hotdog", "Mic": "Mic", "Mean": "Mean"}  # fmt: skip
+    names = {
+        "Chairs": "Chairs",
+        "Lego": "Lego",
+        "Materials": "Materials",
+        "Ship": "Ship",
+        "Drum": "Drum",
+        "Ficus": "Ficus",
+        "Hotdog": "Hotdog",
+        "Mic": "Mic",
+        "Mean": "Mean",
+    }
     n = 0
     for line in protocol.read_text().splitlines():
         cells = [c.strip() for c in line.strip("|").split("|")]
@@ -338,16 +485,37 @@ def test_paper_numbers_match_protocol_and_tex() -> None:
 
 def test_ablation_table_rows() -> None:
     def row(method, ba, u, config, psnr):
-        return {"key": f"{method}{ba}{config}", "scene": "mug", "data": "", "method": method, "config": config,
-                "ba": ba, "uncertainty": u, "default_flags": ba, "status": "ok", "psnr": psnr, "ssim": 0.5,
-                "lpips": 0.2, "train_seconds": 1.0}  # fmt: skip
+        return {
+            "key": f"{method}{ba}{config}",
+            "scene": "mug",
+            "data": "",
+            "method": method,
+            "config": config,
+            "ba": ba,
+            "uncertainty": u,
+            "default_flags": ba,
+            "status": "ok",
+            "psnr": psnr,
+            "ssim": 0.5,
+            "lpips": 0.2,
+            "train_seconds": 1.0,
+        }
 
-    rows = [row("flip", False, False, 1, 10.0), row("flip", True, False, 1, 11.0),
-            row("flip+u", False, True, 1, 12.0), row("flip+u", True, True, 1, 13.0),
-            row("flip+u", True, True, 2, 15.0), {**row("flip", False, False, 2, 99.0), "status": "failed"}]  # fmt: skip
+    rows = [
+        row("flip", False, False, 1, 10.0),
+        row("flip", True, False, 1, 11.0),
+        row("flip+u", False, True, 1, 12.0),
+        row("flip+u", True, True, 1, 13.0),
+        row("flip+u", True, True, 2, 15.0),
+        {**row("flip", False, False, 2, 99.0), "status": "failed"},
+    ]
     md = render_markdown(rows, BenchConfig(scenes="mug", methods="flip,flip+u", configs="1,2", ablation=True))
     table2 = md.split("## Table II:")[1].split("##")[0]
     lines = [ln for ln in table2.splitlines() if ln.startswith("| ") and ("✓" in ln or "| - | - |" in ln)]
-    assert [ln.split(" | ")[:3] for ln in lines] == [["| -", "-", "10.00"], ["| ✓", "-", "11.00"],
-                                                     ["| -", "✓", "12.00"], ["| ✓", "✓", "14.00"]]  # fmt: skip
+    assert [ln.split(" | ")[:3] for ln in lines] == [
+        ["| -", "-", "10.00"],
+        ["| ✓", "-", "11.00"],
+        ["| -", "✓", "12.00"],
+        ["| ✓", "✓", "14.00"],
+    ]
     assert "16.636" in lines[0] and "17.620" in lines[3]  # the paper's Table II beside ours

@@ -11,8 +11,6 @@ from flipviz.data import DatasetError, export_scene, load_blender, load_builtin,
 from flipviz.data.protocol import RING_INDICES
 
 
-
-
 @pytest.fixture(autouse=True)
 def tmp_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path / "cache"))
@@ -120,7 +118,9 @@ def test_bad_inputs_raise_one_line_errors(tmp_path):
     (not_png / "test" / "r_0.png").write_bytes(b"garbage")
     assert "cannot read" in one_line_error(lambda: load_blender(not_png))
 
-    assert "transforms_train.json" in one_line_error(lambda: load_blender(make_folder(tmp_path / "split", good), "train"))
+    assert "transforms_train.json" in one_line_error(
+        lambda: load_blender(make_folder(tmp_path / "split", good), "train")
+    )
 
 
 def test_write_load_round_trip(tmp_path):

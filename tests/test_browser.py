@@ -15,8 +15,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import viser
 import pytest
+import viser
 from browser import CountingProxy, chromium, chromium_available, screenshot_png, wait_until
 
 from flipviz.viz import palette
@@ -29,10 +29,23 @@ pytestmark = pytest.mark.skipif(not chromium_available(), reason="needs chromium
 def app(tmp_path_factory):
     os.environ.setdefault("FLIPVIZ_CACHE", str(tmp_path_factory.mktemp("cache")))
     cfg = AppConfig(
-        scene="chair", res=48, steps=100_000, batch_rays=512, no_rrd=True, port=0, log_every=2, images_every=30,
-        mirror_plane="official", disagreement_limit=float("inf"),  # the estimate (auto) is tested in test_app.py; these tests need the mirrors all run
-        checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("browser") / "run", view_width=640,
-    )  # fmt: skip
+        scene="chair",
+        res=48,
+        steps=100_000,
+        batch_rays=512,
+        no_rrd=True,
+        port=0,
+        log_every=2,
+        images_every=30,
+        mirror_plane="official",
+        disagreement_limit=float(
+            "inf"
+        ),  # the estimate (auto) is tested in test_app.py; these tests need the mirrors all run
+        checkpoint_every=0,
+        eval_on_stop=False,
+        out=tmp_path_factory.mktemp("browser") / "run",
+        view_width=640,
+    )
     a = App(cfg).start()
     wait_until(lambda: a.setup is not None and a.step > 20, 120, what="training to start")
     yield a
@@ -96,8 +109,11 @@ def tab(d, name: str) -> None:
 
 
 def button(d, text: str) -> None:
-    el = wait_until(lambda: [b for b in d.find_elements("xpath", f"//button[normalize-space()='{text}']")
-                             if b.is_displayed()], 20, what=text)[0]  # fmt: skip
+    el = wait_until(
+        lambda: [b for b in d.find_elements("xpath", f"//button[normalize-space()='{text}']") if b.is_displayed()],
+        20,
+        what=text,
+    )[0]
     d.execute_script("arguments[0].scrollIntoView({block: 'center'});", el)
     el.click()
 
@@ -106,8 +122,15 @@ def choose(d, label: str, option: str) -> None:
     el = by_label(d, label)
     d.execute_script("arguments[0].scrollIntoView({block: 'center'});", el)
     el.click()
-    wait_until(lambda: [o for o in d.find_elements("xpath", f"//*[@role='option'][normalize-space()='{option}']")
-                        if o.is_displayed()], 10, what=option)[0].click()  # fmt: skip
+    wait_until(
+        lambda: [
+            o
+            for o in d.find_elements("xpath", f"//*[@role='option'][normalize-space()='{option}']")
+            if o.is_displayed()
+        ],
+        10,
+        what=option,
+    )[0].click()
 
 
 def checkbox(d, label: str, value: bool) -> None:
@@ -130,7 +153,8 @@ def test_1_load_shows_training_and_a_rendered_view(app, browser):
 CHART = """
 const c = Object.values(window.__viserTestpoints?.uplots ?? {}).map(t => t.chart)
   .find(u => u.root.querySelector('.u-title')?.textContent === arguments[0]);
-return c ? [c.scales.y.min, c.scales.y.max, c.data.length, Array.from(c.data[2] ?? []).filter(Number.isFinite).length] : null;
+return c ? [c.scales.y.min, c.scales.y.max, c.data.length,
+            Array.from(c.data[2] ?? []).filter(Number.isFinite).length] : null;
 """  # a uPlot chart of the page by its title: its y range, its columns, the finite values of its third
 
 
@@ -138,8 +162,11 @@ def test_1b_the_psnr_chart_draws_the_batch_and_the_unobserved_views(app, browser
     """Issue 26 item 8: the Train tab's chart has both curves, on a y axis Chromium draws. The test curve is
     NaN between evaluations, and uPlot's own range failed on a first NaN: no axis and no curve at all."""
     tab(browser, "Train")
-    got = wait_until(lambda: (r := browser.execute_script(CHART, "PSNR (dB)")) and r[3] >= 1 and r, 120,
-                     what="a chart with a test evaluation")  # fmt: skip
+    got = wait_until(
+        lambda: (r := browser.execute_script(CHART, "PSNR (dB)")) and r[3] >= 1 and r,
+        120,
+        what="a chart with a test evaluation",
+    )
     lo, hi, columns, evaluations = got
     x, train, test = app.train.plot.data
     assert columns == 3 and lo is not None and hi is not None and lo < hi
@@ -212,8 +239,13 @@ def test_4_beta2_with_its_colour_bar(app, browser):
     tab(browser, "Train")
     choose(browser, "Snapped view shows", "beta^2")
     choose(browser, "My view shows", "beta^2")
-    wait_until(lambda: [e for e in browser.find_elements("xpath", "//*[normalize-space()='Colour scale']")
-                        if e.is_displayed()], 60, what="the colour bar")  # fmt: skip
+    wait_until(
+        lambda: [
+            e for e in browser.find_elements("xpath", "//*[normalize-space()='Colour scale']") if e.is_displayed()
+        ],
+        60,
+        what="the colour bar",
+    )
     time.sleep(2.0)
     img = viewport(shot(browser, "4_beta2"))
     cid = next(iter(app.views.clients))
@@ -253,7 +285,9 @@ def test_5_move_the_plane_and_score_it(app, browser):
     checkbox(browser, "Show plane gizmo", False)
     button(browser, "Reset plane")
     want = float(np.degrees(np.arctan2(*app.mirror.train_plane.normal[[1, 0]])))  # z is up
-    wait_until(lambda: abs(float(box.get_attribute("value")) - want) < 0.6, 20, what=f"the azimuth field back at {want:.1f}")
+    wait_until(
+        lambda: abs(float(box.get_attribute("value")) - want) < 0.6, 20, what=f"the azimuth field back at {want:.1f}"
+    )
 
 
 def test_6_add_and_delete_a_novel_camera(app, browser):
@@ -288,12 +322,29 @@ def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, tmp_path_fac
     from flipviz.viz.viser_common import camera_from_viser
 
     b_dir = app.cfg.out.parent / "b-bl"  # beside A's folder: inside the app's browse roots
-    train(TrainConfig(scene="chair", method="bl", res=32, steps=150, batch_rays=512, mirror_plane="official",
-                      images_every=0, no_rrd=True, out=b_dir))  # fmt: skip
+    train(
+        TrainConfig(
+            scene="chair",
+            method="bl",
+            res=32,
+            steps=150,
+            batch_rays=512,
+            mirror_plane="official",
+            images_every=0,
+            no_rrd=True,
+            out=b_dir,
+        )
+    )
     tab(browser, "Train")
     button(browser, "Pause")
     wait_until(lambda: app.status == "paused", 30, what="A paused")  # A's render stays put while compared
-    overlays = ("input cameras", "test cameras (unobserved)", "mirrored cameras (BA)", "BA trajectories", "fitted sphere")
+    overlays = (
+        "input cameras",
+        "test cameras (unobserved)",
+        "mirrored cameras (BA)",
+        "BA trajectories",
+        "fitted sphere",
+    )
     tab(browser, "Show")
     for name in overlays:  # the frustums drawn over the view: the pixels compared are the background image's
         checkbox(browser, name, False)
@@ -393,7 +444,6 @@ def test_8_switch_scene(app, browser):
     assert img.std() > 10
 
 
-
 def test_9_a_paused_app_goes_quiet_in_the_browser(app, browser):
     """Issue 26 item 1: paused and settled, the page receives next to nothing (the server re-sent the
     mirrors' poses, the BA trajectories and the plot every half second: 37 kB/s on the chair)."""
@@ -422,9 +472,20 @@ def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory
     """Issue 26 item 4: the chair's estimate from 24-px inputs is doubted and, with --unconfident-plane drop,
     its mirrors dropped; one button draws them, scores them and colours them red-yellow-green, though
     training still ignores them."""
-    cfg = AppConfig(scene="chair", res=24, steps=100_000, batch_rays=256, no_rrd=True, port=0, images_every=0,
-                    checkpoint_every=0, eval_on_stop=False, out=tmp_path_factory.mktemp("doubted") / "run",
-                    unconfident_plane="drop", estimate_after=0)  # fmt: skip  (the separate fit's doubted estimate)
+    cfg = AppConfig(
+        scene="chair",
+        res=24,
+        steps=100_000,
+        batch_rays=256,
+        no_rrd=True,
+        port=0,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        out=tmp_path_factory.mktemp("doubted") / "run",
+        unconfident_plane="drop",
+        estimate_after=0,
+    )  # the separate fit's doubted estimate
     doubted = App(cfg).start()
     try:
         wait_until(lambda: doubted.setup is not None and doubted.step > 5, 180, what="the doubted run")

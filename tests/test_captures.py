@@ -75,10 +75,29 @@ def distorted_capture(tmp_path_factory) -> tuple[Path, list[np.ndarray]]:
     ideal = []
     for c in cams:
         rgb, a = render_view("chair", c)
-        ideal.append(np.concatenate([np.where(a[..., None] > 0, (rgb - 1 + a[..., None]) / np.maximum(a[..., None], 1e-6), 0), a[..., None]], -1))
+        ideal.append(
+            np.concatenate(
+                [
+                    np.where(a[..., None] > 0, (rgb - 1 + a[..., None]) / np.maximum(a[..., None], 1e-6), 0),
+                    a[..., None],
+                ],
+                -1,
+            )
+        )
     captured = [_distort(im.astype(np.float32), focal) for im in ideal]
-    doc = {"camera_model": "OPENCV", "fl_x": FX, "fl_y": FY, "cx": CX, "cy": CY, "w": W, "h": W,
-           "k1": DIST[0], "k2": DIST[1], "p1": DIST[2], "p2": DIST[3]}  # fmt: skip
+    doc = {
+        "camera_model": "OPENCV",
+        "fl_x": FX,
+        "fl_y": FY,
+        "cx": CX,
+        "cy": CY,
+        "w": W,
+        "h": W,
+        "k1": DIST[0],
+        "k2": DIST[1],
+        "p1": DIST[2],
+        "p2": DIST[3],
+    }
     return _write_ns(root, cams, captured, doc, mask_files=True), ideal
 
 
@@ -146,8 +165,14 @@ def _one_line(fn) -> str:
     [
         (lambda d: d.pop("fl_x"), "missing key 'fl_x'"),
         (lambda d: d.update(camera_model="OPENCV_FISHEYE"), "not supported"),
-        (lambda d: d["frames"][2].update(camera_model="OPENCV_FISHEYE"), "frame 2: camera_model OPENCV_FISHEYE is not supported"),
-        (lambda d: d["frames"][0].update(transform_matrix=[[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]), "not a rotation"),
+        (
+            lambda d: d["frames"][2].update(camera_model="OPENCV_FISHEYE"),
+            "frame 2: camera_model OPENCV_FISHEYE is not supported",
+        ),
+        (
+            lambda d: d["frames"][0].update(transform_matrix=[[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]),
+            "not a rotation",
+        ),
         (lambda d: d["frames"][1].update(file_path="images/none.png"), "not found"),
         (lambda d: d.update(frames={}), "not a non-empty list"),
         (lambda d: d.update(train_filenames=["images/x.png"]), "not a frame"),
@@ -174,17 +199,25 @@ def test_bad_json_and_unknown_folders_are_one_line(tmp_path):
     assert "not found" in _one_line(lambda: load_scene("", tmp_path / "missing"))
 
 
-def _colmap_capture(root: Path, cams: list[Camera], images: list[np.ndarray], binary: bool, model: str = "PINHOLE") -> Path:
+def _colmap_capture(
+    root: Path, cams: list[Camera], images: list[np.ndarray], binary: bool, model: str = "PINHOLE"
+) -> Path:
     import pycolmap
 
     rec = pycolmap.Reconstruction()
     f = cams[0].focal
-    params = {"PINHOLE": [f, f, W / 2, W / 2], "SIMPLE_PINHOLE": [f, W / 2, W / 2], "FULL_OPENCV": [f, f, W / 2, W / 2] + [0.0] * 8}[model]
+    params = {
+        "PINHOLE": [f, f, W / 2, W / 2],
+        "SIMPLE_PINHOLE": [f, W / 2, W / 2],
+        "FULL_OPENCV": [f, f, W / 2, W / 2] + [0.0] * 8,
+    }[model]
     rec.add_camera_with_trivial_rig(pycolmap.Camera(camera_id=1, model=model, width=W, height=W, params=params))
     (root / "images").mkdir(parents=True)
     for k, (cam, im) in enumerate(zip(cams, images)):
         w2c = np.linalg.inv(cam.c2w @ np.diag([1.0, -1.0, -1.0, 1.0]))  # OpenGL c2w -> OpenCV w2c
-        rec.add_image_with_trivial_frame(pycolmap.Image(name=f"{k}.png", camera_id=1, image_id=k + 1), pycolmap.Rigid3d(w2c[:3]))
+        rec.add_image_with_trivial_frame(
+            pycolmap.Image(name=f"{k}.png", camera_id=1, image_id=k + 1), pycolmap.Rigid3d(w2c[:3])
+        )
         save_rgba_png(root / "images" / f"{k}.png", im)
     rng = np.random.default_rng(0)
     for p in rng.uniform(-0.6, 0.6, (200, 3)):
@@ -208,7 +241,9 @@ def test_colmap_text_and_binary_models(tmp_path, binary, caplog):
     assert not scene.protocol and scene.meta["format"] == "colmap" and scene.meta["box_from"] == "sparse points"
     assert not scene.meta["masked"] and all(v.alpha is None for v in scene.views.values())
     for k, v in scene.views.items():
-        assert np.allclose(v.camera.c2w, cams[k].c2w, atol=1e-6), "COLMAP's world-to-camera (OpenCV) was not inverted to OpenGL c2w"
+        assert np.allclose(v.camera.c2w, cams[k].c2w, atol=1e-6), (
+            "COLMAP's world-to-camera (OpenCV) was not inverted to OpenGL c2w"
+        )
     assert np.all(scene.bbox[0] < -0.55) and np.all(scene.bbox[1] > 0.55) and np.all(np.abs(scene.bbox) < 1.0)
     assert 0 < scene.near < 3.0 < 4.5 < scene.far
     # no masks: the inputs train on every pixel, the flipped images only on rays through the box
@@ -271,8 +306,18 @@ def test_inputs_choose_frames_and_hold_out_the_rest(driveby):
 def test_a_driveby_capture_trains_with_its_held_out_views(driveby, tmp_path, small_torch):
     from flipviz.training.run import train
 
-    cfg = TrainConfig(data=driveby, res=32, steps=12, batch_rays=256, method="flip+u", mirror_plane="scene",
-                      out=tmp_path / "run", no_rrd=True, images_every=0, checkpoint_every=0)  # fmt: skip
+    cfg = TrainConfig(
+        data=driveby,
+        res=32,
+        steps=12,
+        batch_rays=256,
+        method="flip+u",
+        mirror_plane="scene",
+        out=tmp_path / "run",
+        no_rrd=True,
+        images_every=0,
+        checkpoint_every=0,
+    )
     trainer, metrics = train(cfg)
     assert metrics["status"] == "finished" and metrics["config"] == 0 and np.isfinite(metrics["psnr"])
     assert [v["name"] for v in metrics["per_view"]] == [f"frame_{i:05d}" for i in range(N_DRIVE, N_DRIVE + N_HELD)]

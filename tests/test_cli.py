@@ -73,7 +73,8 @@ def test_ctrl_c_during_the_first_imports_is_one_line(entry: str, heavy: str) -> 
             return real(name, *a, **k)
         builtins.__import__ = interrupted
         sys.argv = [{entry!r}, *({"()" if entry == "app.py" else "('train',)"}), "--scene", "chair"]
-        runpy.run_path({entry!r}, run_name="__main__") if {entry!r}.endswith(".py") else runpy.run_module({entry!r}, run_name="__main__")
+        run = runpy.run_path if {entry!r}.endswith(".py") else runpy.run_module
+        run({entry!r}, run_name="__main__")
     """)
     r = _run("-c", hook)
     assert r.returncode == 130 and r.stderr == "flipviz: interrupted (SIGINT)\n", (r.returncode, r.stderr[-2000:])

@@ -35,8 +35,19 @@ def runs(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("runs")
     out = {}
     for method in ("bl", "flip+u"):
-        cfg = TrainConfig(scene="chair", method=method, res=RES, steps=60, batch_rays=256, n_samples=32, grid_res=(16, 24),
-                          mirror_plane="official", images_every=30, log_every=10, out=root / method)  # fmt: skip
+        cfg = TrainConfig(
+            scene="chair",
+            method=method,
+            res=RES,
+            steps=60,
+            batch_rays=256,
+            n_samples=32,
+            grid_res=(16, 24),
+            mirror_plane="official",
+            images_every=30,
+            log_every=10,
+            out=root / method,
+        )
         rec = make_rerun_observer(cfg, cfg.out)
         _, metrics = train(cfg, [rec])
         rec.close()
@@ -92,8 +103,14 @@ def test_keyframes_round_trip_and_are_hit(runs, tmp_path):
 
 
 def test_video_of_two_runs_decodes_with_its_frames_and_ground_truth(runs, tmp_path):
-    cfg = VideoConfig(runs=[runs["bl"], runs["flip+u"]], path="unobserved", frames=15, res=48,
-                      out=tmp_path / "v.mp4", gif=tmp_path / "v.gif")  # fmt: skip
+    cfg = VideoConfig(
+        runs=[runs["bl"], runs["flip+u"]],
+        path="unobserved",
+        frames=15,
+        res=48,
+        out=tmp_path / "v.mp4",
+        gif=tmp_path / "v.gif",
+    )
     mp4, gif = make_video(cfg)
     setup = open_run(runs["bl"]).setup_event
     cams = path_cameras(setup, "unobserved", 15, 48)
@@ -109,7 +126,9 @@ def test_video_of_two_runs_decodes_with_its_frames_and_ground_truth(runs, tmp_pa
             y = row * row_h + 2 * TITLE_H
             panel = frames[i][y : y + 48, 48:96].astype(np.float32) / 255.0
             assert image_psnr(panel, truth) > 25.0
-        assert image_psnr(frames[i][2 * TITLE_H : 2 * TITLE_H + 48, :48] / 255.0, truth) < 25.0  # a render, not the truth
+        assert (
+            image_psnr(frames[i][2 * TITLE_H : 2 * TITLE_H + 48, :48] / 255.0, truth) < 25.0
+        )  # a render, not the truth
     g = imageio.mimread(gif)
     assert len(g) == len(cams)  # under 40 frames: every frame
     with pytest.raises(UserError, match="one run folder, or two"):
@@ -184,7 +203,19 @@ def test_ctrl_c_during_a_video_leaves_no_file_and_bad_runs_are_one_line(runs, tm
     root = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=str(root))
     out = tmp_path / "v.mp4"
-    cmd = [sys.executable, "-m", "flipviz.cli", "video", str(runs["flip+u"]), "--frames", "400", "--res", "64", "--out", str(out)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "flipviz.cli",
+        "video",
+        str(runs["flip+u"]),
+        "--frames",
+        "400",
+        "--res",
+        "64",
+        "--out",
+        str(out),
+    ]
     p = subprocess.Popen(cmd, cwd=tmp_path, env=env, stderr=subprocess.PIPE, text=True)
     seen = ""
     t0 = time.monotonic()

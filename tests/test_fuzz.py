@@ -27,14 +27,37 @@ from flipviz.training.run import open_run
 from flipviz.training.setup import run_split
 from flipviz.training.trainer import Trainer
 
-TINY = dict(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, mirror_plane="official")
+TINY = dict(
+    scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, mirror_plane="official"
+)
 N_JSON, N_BYTES, N_STATE = 60, 30, 40  # mutations per file kind
 SEED = int(os.environ.get("FLIPVIZ_FUZZ_SEED", "0"))  # another seed explores further: FLIPVIZ_FUZZ_SEED=7 pytest ...
 
 # What a mutation puts in a JSON value's place: wrong types, out-of-range numbers, NaN and Infinity
 # (written as Python's json writes them), deep nesting, paths that leave the folder.
-ODD_VALUES = [None, True, 0, -1, 10**30, 1e300, float("inf"), float("nan"), -0.0, "", "x", "../../../../etc/passwd",
-              "/etc/passwd", "a\x00b", [], {}, [[[[[]]]]], [1, 2], [[1, 0, 0], [0, 1, 0]], {"a": 1}, "A" * 5000]  # fmt: skip
+ODD_VALUES = [
+    None,
+    True,
+    0,
+    -1,
+    10**30,
+    1e300,
+    float("inf"),
+    float("nan"),
+    -0.0,
+    "",
+    "x",
+    "../../../../etc/passwd",
+    "/etc/passwd",
+    "a\x00b",
+    [],
+    {},
+    [[[[[]]]]],
+    [1, 2],
+    [[1, 0, 0], [0, 1, 0]],
+    {"a": 1},
+    "A" * 5000,
+]
 
 
 @pytest.fixture(autouse=True)
@@ -146,7 +169,12 @@ def _mutate_state(state: dict, rng: random.Random) -> dict:
             state[k] = v = dict(v)
             nodes += [(v, kk) for kk in v]
     parent, key = rng.choice(nodes)
-    odd = ODD_VALUES + [torch.zeros(3), torch.full((2, 2), float("nan")), torch.zeros(0), torch.ones(5, dtype=torch.int64)]
+    odd = ODD_VALUES + [
+        torch.zeros(3),
+        torch.full((2, 2), float("nan")),
+        torch.zeros(0),
+        torch.ones(5, dtype=torch.int64),
+    ]
     if rng.random() < 0.25:
         del parent[key]
     else:

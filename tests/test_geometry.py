@@ -32,20 +32,29 @@ from flipviz.geometry.sphere import Sphere
 RING_AZ = np.radians(np.arange(16) * 22.5)
 
 
-def ring_camera(az: float, elev_deg: float = 30.0, radius: float = 4.0, target=(0.0, 0.0, 0.0), name: str = "") -> Camera:
+def ring_camera(
+    az: float, elev_deg: float = 30.0, radius: float = 4.0, target=(0.0, 0.0, 0.0), name: str = ""
+) -> Camera:
     e = np.radians(elev_deg)
     eye = np.asarray(target) + radius * np.array([np.cos(e) * np.cos(az), np.cos(e) * np.sin(az), np.sin(e)])
     return Camera(look_at(eye, target), width=8, height=6, focal=10.0, name=name)
 
 
 def half_ring(elev_deg: float = 30.0, target=(0.0, 0.0, 0.0), start: int = 0) -> list[Camera]:
-    return [ring_camera(RING_AZ[(start + j) % 16], elev_deg, target=target, name=f"r{(start + j) % 16}") for j in range(8)]
+    return [
+        ring_camera(RING_AZ[(start + j) % 16], elev_deg, target=target, name=f"r{(start + j) % 16}") for j in range(8)
+    ]
 
 
 def views_of(cams: list[Camera]) -> list[View]:
     rng = np.random.default_rng(0)
     return [
-        View(c, rng.random((c.height, c.width, 3), dtype=np.float32), rng.random((c.height, c.width), dtype=np.float32), index=i)
+        View(
+            c,
+            rng.random((c.height, c.width, 3), dtype=np.float32),
+            rng.random((c.height, c.width), dtype=np.float32),
+            index=i,
+        )
         for i, c in enumerate(cams)
     ]
 
@@ -260,11 +269,15 @@ def test_initial_equals_exact_for_vertical_plane_through_target():
     sphere = fit_camera_sphere(cams)
     plane = Plane(np.zeros(3), np.array([np.cos(0.7), np.sin(0.7), 0.0]))
     for cam in cams:
-        rot, trans = pose_errors(initial_mirrored_camera(cam, plane, sphere).c2w, exact_reflected_camera(cam, plane).c2w)
+        rot, trans = pose_errors(
+            initial_mirrored_camera(cam, plane, sphere).c2w, exact_reflected_camera(cam, plane).c2w
+        )
         assert rot < 1e-6 and trans < 1e-9
     # a tilted plane does not agree: the look-at pose keeps the camera upright
     tilted = Plane(np.zeros(3), np.array([1.0, 0.0, 0.5]))
-    rot, _ = pose_errors(initial_mirrored_camera(cams[0], tilted, sphere).c2w, exact_reflected_camera(cams[0], tilted).c2w)
+    rot, _ = pose_errors(
+        initial_mirrored_camera(cams[0], tilted, sphere).c2w, exact_reflected_camera(cams[0], tilted).c2w
+    )
     assert rot > 1.0
 
 

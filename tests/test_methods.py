@@ -94,9 +94,19 @@ def test_original_poses_fixed_unless_refine_all(chair, tmp_path, refine):
     from flipviz.training.trainer import Trainer
 
     cfg = TrainConfig(
-        method="flip", refine=refine, res=RES, steps=15, batch_rays=512, n_samples=32, grid_res=(32,),
-        out=tmp_path / "run", images_every=0, checkpoint_every=0, eval_on_stop=False, mirror_plane="official",
-    )  # fmt: skip
+        method="flip",
+        refine=refine,
+        res=RES,
+        steps=15,
+        batch_rays=512,
+        n_samples=32,
+        grid_res=(32,),
+        out=tmp_path / "run",
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        mirror_plane="official",
+    )
     tr = Trainer(cfg, scene=chair)
     for _ in range(cfg.steps):
         tr._train_step()

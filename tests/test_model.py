@@ -252,19 +252,25 @@ def test_checkpoints_of_planar_grids_load_into_channels_last_grids():
     with torch.no_grad():
         m.field.feat_grid.normal_()
     state = m.state_dict()
-    old = {k: (v.permute(3, 0, 1, 2)[:, None].contiguous() if k.endswith(("density_grid", "feat_grid")) else v)
-           for k, v in state.items()}  # fmt: skip
+    old = {
+        k: (v.permute(3, 0, 1, 2)[:, None].contiguous() if k.endswith(("density_grid", "feat_grid")) else v)
+        for k, v in state.items()
+    }
     m2 = make("grid")
     m2.load_state_dict(old)
     x = torch.rand(100, 3) * 2 - 1
     torch.testing.assert_close(m2.field.density(x), m.field.density(x))
-    torch.testing.assert_close(m2.field.color(x, x / x.norm(dim=-1, keepdim=True))[0], m.field.color(x, x / x.norm(dim=-1, keepdim=True))[0])
+    torch.testing.assert_close(
+        m2.field.color(x, x / x.norm(dim=-1, keepdim=True))[0], m.field.color(x, x / x.norm(dim=-1, keepdim=True))[0]
+    )
 
 
 def test_pose_gradients_flow_through_grid(chair32):
     """Ray origins/directions from a c2w with requires_grad get gradients (what BA needs)."""
     views = ring(chair32)
-    m = RadianceModel(ModelConfig(GridConfig(grid_res=(24,), upsample_at=()), n_samples=48), chair32.bbox, 2.0, 6.0, False)
+    m = RadianceModel(
+        ModelConfig(GridConfig(grid_res=(24,), upsample_at=()), n_samples=48), chair32.bbox, 2.0, 6.0, False
+    )
     fit(m, views, steps=10, batch_rays=1024)
     bank = RayBank.from_images([views[0].camera], [views[0].rgb])
     c2w = torch.as_tensor(views[0].camera.c2w, dtype=torch.float32).expand(len(bank), 4, 4).clone().requires_grad_(True)
@@ -291,7 +297,9 @@ def test_barf_coarse_to_fine_opens_the_positional_encoding_bands_with_training()
     all of them from 50% on. The model's per-step schedule drives it (a window pinned open is BARF off)."""
     torch.manual_seed(0)
     bbox = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    model = RadianceModel(ModelConfig(field=NerfConfig(barf_c2f=(0.1, 0.5)), n_samples=8), bbox, 0.5, 4.0, with_beta=False)
+    model = RadianceModel(
+        ModelConfig(field=NerfConfig(barf_c2f=(0.1, 0.5)), n_samples=8), bbox, 0.5, 4.0, with_beta=False
+    )
     weights = []
     for step in (0, 10, 30, 50, 100):
         model.update_schedule(step, 100)

@@ -107,14 +107,17 @@ def test_beta2_compositing_on_a_slab_with_known_weights(mode, sum_wp):
     field, v = Slab(2 * math.log(2.0), 0.2), 0.2
     o, d = torch.tensor([[0.0, 0.0, 3.0]]), torch.tensor([[0.0, 0.0, -1.0]])
     bbox = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    out = render_rays(field, o, d, bbox=bbox, near=0.5, far=6.0, n_samples=4, training=False, beta_min=B_MIN,
-                      beta2_mode=mode)  # fmt: skip
+    out = render_rays(
+        field, o, d, bbox=bbox, near=0.5, far=6.0, n_samples=4, training=False, beta_min=B_MIN, beta2_mode=mode
+    )
     assert out["opacity"].item() == pytest.approx(0.75, rel=1e-6)
     assert out["beta2"].item() == pytest.approx(B_MIN**2 + v * sum_wp, rel=1e-6)
     assert out["rgb"][0].tolist() == pytest.approx([0.75 * 0.5 + 0.25] * 3, rel=1e-6)
 
 
-@pytest.mark.parametrize("field", [GridConfig(grid_res=(16,), upsample_at=()), NerfConfig(depth=2, width=32, pe=4, dir_pe=2)])
+@pytest.mark.parametrize(
+    "field", [GridConfig(grid_res=(16,), upsample_at=()), NerfConfig(depth=2, width=32, pe=4, dir_pe=2)]
+)
 def test_the_beta_head_learns(field):
     """The NLL's gradient reaches the variance head through the rendered beta^2 (nothing detached)."""
     torch.manual_seed(0)

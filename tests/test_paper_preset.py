@@ -55,15 +55,30 @@ def test_the_app_in_the_paper_preset_trains_the_papers_50k_steps():
     the latter, so `python app.py --preset paper` trained 3000 steps."""
     app = parse_command(["app", "--preset", "paper"])
     assert (app.steps, app.field, app.n_samples) == (50_000, "nerf", 128)
-    assert parse_command(["app"]).steps == 3000 and parse_command(["app", "--preset", "paper", "--steps", "3000"]).steps == 3000
+    assert (
+        parse_command(["app"]).steps == 3000
+        and parse_command(["app", "--preset", "paper", "--steps", "3000"]).steps == 3000
+    )
 
 
 @pytest.mark.skipif(not (LEGO / "transforms_test.json").is_file(), reason="needs the NeRF-synthetic lego")
 @pytest.mark.skipif(shutil.which("timeout") is None, reason="needs coreutils' timeout")
 def test_gpu_paper_script_runs_on_the_cpu_with_a_tiny_step_count(tmp_path):
-    env = dict(os.environ, DEVICE="cpu", SECONDS_PER_RUN="240", STEPS="2", BATCH="64", RES="16", LEGO=str(LEGO),
-               OUT=str(tmp_path / "out"), PYTHON=str(Path(os.sys.executable)), PYTHONPATH=str(ROOT))  # fmt: skip
-    r = subprocess.run(["bash", str(ROOT / "benchmarks/gpu_paper.sh")], env=env, capture_output=True, text=True, timeout=600)
+    env = dict(
+        os.environ,
+        DEVICE="cpu",
+        SECONDS_PER_RUN="240",
+        STEPS="2",
+        BATCH="64",
+        RES="16",
+        LEGO=str(LEGO),
+        OUT=str(tmp_path / "out"),
+        PYTHON=str(Path(os.sys.executable)),
+        PYTHONPATH=str(ROOT),
+    )
+    r = subprocess.run(
+        ["bash", str(ROOT / "benchmarks/gpu_paper.sh")], env=env, capture_output=True, text=True, timeout=600
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     summary = json.loads((tmp_path / "out/summary.json").read_text())
     assert summary["preset"] == "paper" and [x["method"] for x in summary["runs"]] == ["bl", "flip+u"]

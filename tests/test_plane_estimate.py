@@ -22,7 +22,9 @@ def test_turned_scenes_keep_an_exact_known_plane_that_official_misses():
         from scipy.spatial import cKDTree
 
         assert cKDTree(v).query(mirrored)[0].max() < 1e-9, f"{name}: the turned plane is not a symmetry"
-    official = mirror_plane("official", [], fit_camera_sphere([v.camera for v in make_split(load_builtin("chair-turned", 32), 1).inputs]))
+    official = mirror_plane(
+        "official", [], fit_camera_sphere([v.camera for v in make_split(load_builtin("chair-turned", 32), 1).inputs])
+    )
     deg, off = plane_error(official, symmetry_plane("chair-turned"))
     assert deg == pytest.approx(TURN_YAW_DEG) and off > 0.1
 
@@ -80,7 +82,9 @@ def test_auto_doubts_the_asymmetric_mug():
 
 
 def test_a_resumed_run_reads_its_estimate_back(tmp_path, turned_chair):
-    est = PlaneEstimate(Plane(np.array([0.1, 0.2, 0.3]), np.array([0.0, 1.0, 0.0])), 0.4, 0.9, 0.8, [0.0, 1.0], [0.5, 0.6], 3.0)
+    est = PlaneEstimate(
+        Plane(np.array([0.1, 0.2, 0.3]), np.array([0.0, 1.0, 0.0])), 0.4, 0.9, 0.8, [0.0, 1.0], [0.5, 0.6], 3.0
+    )
     path = tmp_path / "plane.json"
     path.write_text(__import__("json").dumps(est.to_dict()))
     back = estimate_or_read([], turned_chair, "cpu", 0, path)  # no inputs: it must not estimate

@@ -55,7 +55,9 @@ def test_the_plane_motion_keeps_mirrored_cameras_exact_and_moves_lookat_ones_rig
         assert np.allclose(moved, exact_reflected_camera(c, p1).c2w, atol=1e-5)
     sphere = fit_camera_sphere(cams)
     look = [motion @ initial_mirrored_camera(c, p0, sphere).c2w for c in cams]
-    assert all(np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-5) and np.linalg.det(m[:3, :3]) > 0 for m in look)
+    assert all(
+        np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-5) and np.linalg.det(m[:3, :3]) > 0 for m in look
+    )
     assert np.allclose(MirrorPlane(p0).motion().detach().numpy(), np.eye(4), atol=1e-6)  # it starts at P0
 
 
@@ -66,8 +68,13 @@ def known_field():
     scene = load_builtin("chair", 32)
     split = make_split(scene, 1)
     torch.manual_seed(0)
-    model = RadianceModel(ModelConfig(field=GridConfig(grid_res=(32, 48), upsample_at=(0.3,)), n_samples=48),
-                          scene.bbox, scene.near, scene.far, with_beta=False)  # fmt: skip
+    model = RadianceModel(
+        ModelConfig(field=GridConfig(grid_res=(32, 48), upsample_at=(0.3,)), n_samples=48),
+        scene.bbox,
+        scene.near,
+        scene.far,
+        with_beta=False,
+    )
     fit(model, split.inputs + split.tests, 400, batch_rays=2048)
     return model, split.inputs
 
@@ -107,8 +114,18 @@ def test_a_symmetric_object_keeps_its_exact_plane(tmp_path):
     """Started from the chair's exact plane, refinement leaves it there (0.3 deg, 0.01 units). Measured: 0.11° /
     0.000 at 64 px and 400 steps, 0.08° / 0.001 at the defaults (100 px, 600); at 48 px and 300 steps it drifts
     0.37°: the lighting is not symmetric, and a coarse model lets the photometric optimum wander."""
-    tr = Trainer(TrainConfig(scene="chair", res=64, steps=400, mirror_plane="scene", out=tmp_path / "run", no_rrd=True,
-                             images_every=0, checkpoint_every=0))  # fmt: skip
+    tr = Trainer(
+        TrainConfig(
+            scene="chair",
+            res=64,
+            steps=400,
+            mirror_plane="scene",
+            out=tmp_path / "run",
+            no_rrd=True,
+            images_every=0,
+            checkpoint_every=0,
+        )
+    )
     m = tr.run()
     deg, off = plane_error(tr.flip.current_plane(), TRUE)
     assert m["plane"]["refined_error_deg"] == pytest.approx(deg) and deg < 0.3 and off < 0.01, (deg, off)
@@ -120,8 +137,18 @@ def test_refinement_recovers_a_plane_turned_5_degrees_and_moved_5_hundredths(tmp
     CI machine) on the chair, its plane started 5° and 0.05 off. It ends 0.48° / 0.002 off here."""
     start = turned(TRUE, 5.0, 0.05)
     arg = ",".join(map(str, start.point)) + ";" + ",".join(map(str, start.normal))
-    tr = Trainer(TrainConfig(scene="chair", mirror_plane=arg, out=tmp_path / "run", no_rrd=True, images_every=0,
-                             checkpoint_every=0, res=64, steps=400))  # fmt: skip
+    tr = Trainer(
+        TrainConfig(
+            scene="chair",
+            mirror_plane=arg,
+            out=tmp_path / "run",
+            no_rrd=True,
+            images_every=0,
+            checkpoint_every=0,
+            res=64,
+            steps=400,
+        )
+    )
     assert tr.cfg.refine_plane  # on by default
     tr.run()
     deg, off = plane_error(tr.flip.current_plane(), TRUE)
@@ -133,8 +160,17 @@ def test_both_fields_move_the_plane_and_a_resumed_run_keeps_it(tmp_path, field):
     """The plane is a parameter whatever the field; --no-refine-plane keeps it fixed; a checkpoint holds it."""
     start = turned(TRUE, 3.0, 0.0)
     arg = ",".join(map(str, start.point)) + ";" + ",".join(map(str, start.normal))
-    kw = dict(scene="chair", res=16, steps=6, batch_rays=128, n_samples=16, field=field, mirror_plane=arg, no_rrd=True,
-              images_every=0)  # fmt: skip
+    kw = dict(
+        scene="chair",
+        res=16,
+        steps=6,
+        batch_rays=128,
+        n_samples=16,
+        field=field,
+        mirror_plane=arg,
+        no_rrd=True,
+        images_every=0,
+    )
     tr = Trainer(TrainConfig(**kw, out=tmp_path / "a"))
     m = tr.run()
     assert m["plane"]["refined_change_deg"] > 0.0 or m["plane"]["refined_change_offset"] > 0.0
@@ -146,13 +182,23 @@ def test_both_fields_move_the_plane_and_a_resumed_run_keeps_it(tmp_path, field):
 
 
 def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(tmp_path):
-    """--mirror-plane auto (issue 20 item 3): the run trains its inputs alone for --estimate-after steps (at most a quarter),
+    """--mirror-plane auto (issue 20 item 3): the run trains its inputs alone for --estimate-after steps (at
+    most a quarter),
     estimates the plane from that field (no separate fit), and the mirrored views join at that step, with
     their schedules counted from it; a resumed run reads the estimate back and keeps the same join."""
     import json
 
-    kw = dict(scene="chair", res=24, steps=160, batch_rays=256, n_samples=24, grid_res=(16,), images_every=0, no_rrd=True,
-              disagreement_limit=float("inf"))  # fmt: skip
+    kw = dict(
+        scene="chair",
+        res=24,
+        steps=160,
+        batch_rays=256,
+        n_samples=24,
+        grid_res=(16,),
+        images_every=0,
+        no_rrd=True,
+        disagreement_limit=float("inf"),
+    )
     tr = Trainer(TrainConfig(**kw, out=tmp_path / "a", checkpoint_every=80))
     K = 160 // 4  # a quarter of this short run (150 steps in a long one)
     assert tr.cfg.mirror_plane == "auto" and tr.cfg.estimate_after == 150
@@ -177,4 +223,6 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     assert short.step == 2 and short.flip.start == 2 and short.plane_estimate.meta["fit_steps"] > 0
     short.close()
     fitted = build_run(TrainConfig(**kw, out=tmp_path / "c", estimate_after=0), tr.scene, tmp_path / "a" / "plane.json")
-    assert fitted.warm_up == 0 and fitted.flip.start == 0  # --estimate-after 0 (the estimate given): mirrors from step 0
+    assert (
+        fitted.warm_up == 0 and fitted.flip.start == 0
+    )  # --estimate-after 0 (the estimate given): mirrors from step 0

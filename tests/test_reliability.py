@@ -27,7 +27,9 @@ from flipviz.training.config import TrainConfig
 from flipviz.training.trainer import Trainer
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = dict(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, mirror_plane="official")
+TINY = dict(
+    scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, mirror_plane="official"
+)
 
 
 @pytest.fixture(autouse=True)
@@ -36,8 +38,14 @@ def _cache(tmp_path_factory, monkeypatch):
 
 
 def flipviz(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "flipviz.cli", *args], cwd=REPO, capture_output=True, text=True,
-                          timeout=timeout, env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "flipviz.cli", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
 
 
 def one_line_error(r, code: int = 2) -> str:
@@ -53,7 +61,8 @@ SAVE_CHILD = textwrap.dedent("""
     signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C as in a terminal (a background job ignores it)
     from flipviz.training.config import TrainConfig
     from flipviz.training.trainer import Trainer
-    tr = Trainer(TrainConfig(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), mirror_plane="official", out=sys.argv[1]))
+    tr = Trainer(TrainConfig(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,),
+                             mirror_plane="official", out=sys.argv[1]))
     real_save = torch.save
     def save_and_interrupt(obj, f, *a, **k):  # Ctrl-C lands in the middle of the write
         os.kill(os.getpid(), signal.SIGINT)
@@ -69,8 +78,9 @@ SAVE_CHILD = textwrap.dedent("""
 
 
 def test_an_interrupt_inside_the_save_keeps_the_checkpoint(tmp_path):
-    r = subprocess.run([sys.executable, "-c", SAVE_CHILD, str(tmp_path / "run")], cwd=REPO, capture_output=True,
-                       text=True, timeout=120)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, "-c", SAVE_CHILD, str(tmp_path / "run")], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
     assert "interrupted after the save" in r.stdout, r.stdout + r.stderr
     assert load_checkpoint(tmp_path / "run")["step"] == 0
     assert not [p for p in (tmp_path / "run").iterdir() if ".tmp" in p.name]
@@ -100,9 +110,30 @@ UPSAMPLE_CHILD = textwrap.dedent("""
 
 def test_an_interrupt_inside_the_grid_upsample_leaves_a_run_that_resumes(tmp_path):
     out = tmp_path / "run"
-    args = ["--scene", "chair", "--mirror-plane", "official", "--res", "24", "--batch-rays", "256", "--n-samples", "32",
-            "--grid-res", "16", "24", "--steps", "8", "--images-every", "0", "--out", str(out)]  # upsample at step 2  # fmt: skip
-    r = subprocess.run([sys.executable, "-c", UPSAMPLE_CHILD, *args], cwd=REPO, capture_output=True, text=True, timeout=300)
+    args = [
+        "--scene",
+        "chair",
+        "--mirror-plane",
+        "official",
+        "--res",
+        "24",
+        "--batch-rays",
+        "256",
+        "--n-samples",
+        "32",
+        "--grid-res",
+        "16",
+        "24",
+        "--steps",
+        "8",
+        "--images-every",
+        "0",
+        "--out",
+        str(out),
+    ]  # upsample at step 2
+    r = subprocess.run(
+        [sys.executable, "-c", UPSAMPLE_CHILD, *args], cwd=REPO, capture_output=True, text=True, timeout=300
+    )
     assert r.returncode == 128 + signal.SIGINT and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert json.loads((out / "metrics.json").read_text())["psnr"] > 0  # the evaluation on stop worked
     model = load_checkpoint(out)["model"]
@@ -117,11 +148,43 @@ def test_an_interrupt_inside_the_grid_upsample_leaves_a_run_that_resumes(tmp_pat
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig):
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "flipviz.cli", "train", "--scene", "chair", "--mirror-plane", "official", "--res", "24", "--steps", "100000",
-           "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24", "--log-every", "1", "--images-every", "0",
-           "--checkpoint-every", "0", "--no-eval-on-stop", "--out", str(out)]  # fmt: skip
-    p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "flipviz.cli",
+        "train",
+        "--scene",
+        "chair",
+        "--mirror-plane",
+        "official",
+        "--res",
+        "24",
+        "--steps",
+        "100000",
+        "--batch-rays",
+        "256",
+        "--n-samples",
+        "32",
+        "--grid-res",
+        "24",
+        "--log-every",
+        "1",
+        "--images-every",
+        "0",
+        "--checkpoint-every",
+        "0",
+        "--no-eval-on-stop",
+        "--out",
+        str(out),
+    ]
+    p = subprocess.Popen(
+        cmd,
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
     try:
         t_end, rrd = time.monotonic() + 180, out / "recording.rrd"
 
@@ -149,8 +212,26 @@ def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig):
 # ------------------------------------------------------------------------- 3: resume keeps the recording
 def test_resume_into_the_same_folder_keeps_the_earlier_recording(tmp_path):
     out = tmp_path / "run"
-    base = ["--scene", "chair", "--mirror-plane", "official", "--res", "24", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
-            "--images-every", "0", "--log-every", "1", "--out", str(out)]  # fmt: skip
+    base = [
+        "--scene",
+        "chair",
+        "--mirror-plane",
+        "official",
+        "--res",
+        "24",
+        "--batch-rays",
+        "256",
+        "--n-samples",
+        "32",
+        "--grid-res",
+        "24",
+        "--images-every",
+        "0",
+        "--log-every",
+        "1",
+        "--out",
+        str(out),
+    ]
     assert flipviz("train", *base, "--steps", "20").returncode == 0
     first = read_rrd(out / "recording.rrd")
     r = flipviz("train", *base, "--steps", "40", "--resume", str(out))
@@ -214,8 +295,10 @@ def in_small_filesystem(tmp_path: Path, megabytes: int, script: str) -> subproce
         pytest.skip(f"no private mount namespace here (unshare -rm: {probe.stderr.decode().strip()})")
     mnt = tmp_path / "small"
     mnt.mkdir()
-    setup = f'set -u; D={mnt}; PY={sys.executable}; mount -t tmpfs -o size={megabytes}m tmpfs $D || exit 99\n'
-    r = subprocess.run(["unshare", "-rm", "bash", "-c", setup + script], cwd=REPO, capture_output=True, text=True, timeout=600)
+    setup = f"set -u; D={mnt}; PY={sys.executable}; mount -t tmpfs -o size={megabytes}m tmpfs $D || exit 99\n"
+    r = subprocess.run(
+        ["unshare", "-rm", "bash", "-c", setup + script], cwd=REPO, capture_output=True, text=True, timeout=600
+    )
     if r.returncode == 99:
         pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
     return r
@@ -223,7 +306,8 @@ def in_small_filesystem(tmp_path: Path, megabytes: int, script: str) -> subproce
 
 def test_a_real_full_disk_is_one_line_and_keeps_a_readable_checkpoint_and_recording(tmp_path):
     """A 40 MB tmpfs with 28 MB free: the step-100 checkpoint (the grid still coarse) fits, the step-200
-    one (the grid refined, plus the copy an atomic write needs) does not. The run stops in one line; the checkpoint and the recording (which
+    one (the grid refined, plus the copy an atomic write needs) does not. The run stops in one line; the
+    checkpoint and the recording (which
     stops before the disk fills) stay readable. Torch's zip writer and Rerun's file sink fail inside
     on a real full disk (a RuntimeError, a file without footer): a mocked ENOSPC never showed that."""
     script = textwrap.dedent("""
@@ -232,7 +316,7 @@ def test_a_real_full_disk_is_one_line_and_keeps_a_readable_checkpoint_and_record
             --out $D/run --rrd $D/run.rrd 2> $D/err.txt > /dev/null
         echo "rc=$?"
         tr '\\r' '\\n' < $D/err.txt | grep -a "flipviz\\]\\|Traceback\\|Error" | grep -av "step/s" | sed 's/^/err: /'
-        $PY -c "from flipviz.training.checkpoint import load_checkpoint; print('step', load_checkpoint('$D/run')['step'])"
+        $PY -c "from flipviz.training.checkpoint import load_checkpoint as L; print('step', L('$D/run')['step'])"
         $(dirname $PY)/rerun rrd verify $D/run.rrd 2>&1 | tail -1 | sed 's/^/verify: /'
     """)
     r = in_small_filesystem(tmp_path, 40, script)
@@ -240,7 +324,9 @@ def test_a_real_full_disk_is_one_line_and_keeps_a_readable_checkpoint_and_record
     assert "rc=1" in out and "step 100" in out and "verify: 1 file verified without error" in out, out + r.stderr
     errs = [ln for ln in out.splitlines() if ln.startswith("err: ")]
     assert not [e for e in errs if "Traceback" in e or "RuntimeError" in e], out
-    assert any("cannot write" in e and "MB are free on that disk; the last good checkpoint is kept" in e for e in errs), out
+    assert any(
+        "cannot write" in e and "MB are free on that disk; the last good checkpoint is kept" in e for e in errs
+    ), out
     assert any("the recording" in e and "stops here" in e for e in errs), out
 
 
@@ -248,10 +334,36 @@ def test_compare_onto_a_full_disk_is_one_line(tmp_path):
     runs = []
     for method in ("bl", "flip"):
         run = tmp_path / method
-        assert cli.main(["train", "--scene", "chair", "--method", method, "--res", "24", "--steps", "20", "--batch-rays", "256",
-                         "--n-samples", "32", "--grid-res", "24", "--mirror-plane", "official", "--out", str(run)]) == 0  # fmt: skip
+        assert (
+            cli.main(
+                [
+                    "train",
+                    "--scene",
+                    "chair",
+                    "--method",
+                    method,
+                    "--res",
+                    "24",
+                    "--steps",
+                    "20",
+                    "--batch-rays",
+                    "256",
+                    "--n-samples",
+                    "32",
+                    "--grid-res",
+                    "24",
+                    "--mirror-plane",
+                    "official",
+                    "--out",
+                    str(run),
+                ]
+            )
+            == 0
+        )
         runs.append(run)
-    script = f"$PY -m flipviz.cli compare {runs[0]} {runs[1]} --out $D/cmp.rrd; echo rc=$?; ls -A $D | sed 's/^/left: /'\n"
+    script = (
+        f"$PY -m flipviz.cli compare {runs[0]} {runs[1]} --out $D/cmp.rrd; echo rc=$?; ls -A $D | sed 's/^/left: /'\n"
+    )
     r = in_small_filesystem(tmp_path, 1, script)
     err = r.stderr.strip()
     assert "rc=2" in r.stdout and "left: " not in r.stdout, r.stdout + r.stderr
@@ -262,8 +374,31 @@ def test_video_and_report_onto_a_full_disk_are_one_line_and_keep_the_earlier_fil
     """With 16 KB left, ffmpeg leaves a file it cannot open and imageio raises nothing: the video is
     decoded back before it replaces the earlier one."""
     run = tmp_path / "run"
-    assert cli.main(["train", "--scene", "chair", "--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32",
-                     "--grid-res", "24", "--mirror-plane", "official", "--no-rrd", "--out", str(run)]) == 0  # fmt: skip
+    assert (
+        cli.main(
+            [
+                "train",
+                "--scene",
+                "chair",
+                "--res",
+                "24",
+                "--steps",
+                "5",
+                "--batch-rays",
+                "256",
+                "--n-samples",
+                "32",
+                "--grid-res",
+                "24",
+                "--mirror-plane",
+                "official",
+                "--no-rrd",
+                "--out",
+                str(run),
+            ]
+        )
+        == 0
+    )
     script = textwrap.dedent(f"""
         V="$PY -m flipviz.cli video {run} --frames 8 --res 32 --out $D/v.mp4"
         $V > /dev/null 2>&1 || echo "first video failed"
@@ -297,7 +432,20 @@ def test_an_interrupt_or_refusal_during_setup_leaves_nothing_behind(tmp_path, mo
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    tiny = ["--scene", "chair", "--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24"]
+    tiny = [
+        "--scene",
+        "chair",
+        "--res",
+        "24",
+        "--steps",
+        "5",
+        "--batch-rays",
+        "256",
+        "--n-samples",
+        "32",
+        "--grid-res",
+        "24",
+    ]
     with monkeypatch.context() as m:
         m.setattr(plane_estimate, "estimate_plane", interrupted)  # the separate fit
         m.setattr(trainer_module, "estimate_from_field", interrupted)  # the estimate from the run's field
@@ -308,12 +456,20 @@ def test_an_interrupt_or_refusal_during_setup_leaves_nothing_behind(tmp_path, mo
     done = tmp_path / "done"
     assert cli.main(["train", *tiny, "--mirror-plane", "official", "--out", str(done)]) == 0
     before = sorted(p.name for p in done.iterdir())
-    assert cli.main(["train", *tiny, "--mirror-plane", "official", "--method", "bl", "--resume", str(done), "--out", str(done)]) == 2
+    assert (
+        cli.main(
+            ["train", *tiny, "--mirror-plane", "official", "--method", "bl", "--resume", str(done), "--out", str(done)]
+        )
+        == 2
+    )
     assert "cannot resume" in capsys.readouterr().err and sorted(p.name for p in done.iterdir()) == before
 
 
 def test_training_over_an_earlier_run_is_refused_unless_overwrite(tmp_path, capsys):
-    out, tiny = tmp_path / "run", ["--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24"]
+    out, tiny = (
+        tmp_path / "run",
+        ["--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24"],
+    )
     assert cli.main(["train", "--scene", "chair", *tiny, "--mirror-plane", "official", "--out", str(out)]) == 0
     kept = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
     capsys.readouterr()
@@ -330,8 +486,22 @@ def test_training_over_an_earlier_run_is_refused_unless_overwrite(tmp_path, caps
 def test_a_recording_never_lands_in_a_run_folder_in_training_or_over_a_file(tmp_path, capsys):
     from flipviz.files import FolderLock
 
-    tiny = ["--scene", "chair", "--res", "24", "--steps", "5", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
-            "--mirror-plane", "official"]  # fmt: skip
+    tiny = [
+        "--scene",
+        "chair",
+        "--res",
+        "24",
+        "--steps",
+        "5",
+        "--batch-rays",
+        "256",
+        "--n-samples",
+        "32",
+        "--grid-res",
+        "24",
+        "--mirror-plane",
+        "official",
+    ]
     a = tmp_path / "a"
     lock = FolderLock(a)  # run A trains there
     (a / "recording.rrd").write_bytes(b"run A's recording")
@@ -344,6 +514,7 @@ def test_a_recording_never_lands_in_a_run_folder_in_training_or_over_a_file(tmp_
     assert (a / "recording.rrd").read_bytes() == b"run A's recording"
     assert read_rrd(a / "recording.1.rrd")["/curves/train/loss"]
 
+
 def test_a_zero_transform_matrix_is_refused(tmp_path):
     from flipviz.data.blender import load_blender
 
@@ -355,7 +526,10 @@ def test_a_zero_transform_matrix_is_refused(tmp_path):
     (tmp_path / "transforms_test.json").write_text(json.dumps(doc))
     with pytest.raises(UserError, match="not a rotation"):
         load_blender(tmp_path)
-    for bad, what in (({"camera_angle_x": 0.69, "frames": {"a": 1}}, "not a list"), ([1, 2], "top level is a JSON list")):
+    for bad, what in (
+        ({"camera_angle_x": 0.69, "frames": {"a": 1}}, "not a list"),
+        ([1, 2], "top level is a JSON list"),
+    ):
         (tmp_path / "transforms_test.json").write_text(json.dumps(bad))
         with pytest.raises(UserError, match=what):
             load_blender(tmp_path)
@@ -380,18 +554,27 @@ def test_a_run_whose_model_is_not_finite_never_reports_success(tmp_path):
 
 # ------------------------------------------------------------------------- 7, 8, 9: one line for bad input
 BAD = [
-    (["--device", "cuda"], "CUDA"), (["--device", "tpu"], "tpu"), (["--batch-rays", "-3"], "--batch-rays"),
-    (["--log-every", "0"], "--log-every"), (["--steps", "0"], "--steps"), (["--steps", "-5"], "--steps"),
-    (["--res", "5"], "--res"), (["--res", "4000"], "--res"), (["--batch-rays", "0"], "--batch-rays"),
-    (["--n-samples", "0"], "--n-samples"), (["--mirror-plane", "sideways"], "bad mirror plane"),
+    (["--device", "cuda"], "CUDA"),
+    (["--device", "tpu"], "tpu"),
+    (["--batch-rays", "-3"], "--batch-rays"),
+    (["--log-every", "0"], "--log-every"),
+    (["--steps", "0"], "--steps"),
+    (["--steps", "-5"], "--steps"),
+    (["--res", "5"], "--res"),
+    (["--res", "4000"], "--res"),
+    (["--batch-rays", "0"], "--batch-rays"),
+    (["--n-samples", "0"], "--n-samples"),
+    (["--mirror-plane", "sideways"], "bad mirror plane"),
     (["--mirror-plane", "0,0,0;0,0,0"], "normal is zero"),
-]  # fmt: skip
+]
 
 
 BAD += [  # what tyro refuses while parsing: one line too, not its framed box
-    (["--steps", "1e12"], "Error parsing --steps"), (["--method", "foo"], "invalid choice 'foo'"), (["--nosuch", "3"], "Unrecognized"),
+    (["--steps", "1e12"], "Error parsing --steps"),
+    (["--method", "foo"], "invalid choice 'foo'"),
+    (["--nosuch", "3"], "Unrecognized"),
     (["--plane-file", "."], "is not a file"),
-]  # fmt: skip
+]
 
 
 @pytest.mark.parametrize("args, says", BAD)
@@ -422,20 +605,52 @@ def _one_px_tall(root: Path, doc: dict) -> None:
 
 
 EDGES = [  # (what a hostile or damaged folder holds, the edit, what the one line says); each was a traceback
-    ("nesting", lambda r, d: '{"camera_angle_x": 0.69, "frames": ' + "[" * 100_000 + "]" * 100_000 + "}", "nests too deeply"),
+    (
+        "nesting",
+        lambda r, d: '{"camera_angle_x": 0.69, "frames": ' + "[" * 100_000 + "]" * 100_000 + "}",
+        "nests too deeply",
+    ),
     ("infinity", lambda r, d: json.dumps(d | {"camera_angle_x": float("inf")}), "Infinity is not a JSON number"),
     ("one_px_tall", _one_px_tall, "at least 8 px"),
-    ("outside", lambda r, d: d | {"frames": [f | {"file_path": "../../../etc/passwd"} for f in d["frames"]]}, "outside its folder"),
-    ("far_camera", lambda r, d: d | {"frames": [f | {"transform_matrix": [[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}
-                                                for f in d["frames"]]}, "units out"),  # fmt: skip
+    (
+        "outside",
+        lambda r, d: d | {"frames": [f | {"file_path": "../../../etc/passwd"} for f in d["frames"]]},
+        "outside its folder",
+    ),
+    (
+        "far_camera",
+        lambda r, d: (
+            d
+            | {
+                "frames": [
+                    f | {"transform_matrix": [[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}
+                    for f in d["frames"]
+                ]
+            }
+        ),
+        "units out",
+    ),
 ]
 
 
 @pytest.mark.parametrize("name, edit, says", EDGES, ids=[e[0] for e in EDGES])
 def test_damaged_data_folders_are_one_line(tmp_path, capsys, name, edit, says):
     data = _orbit_folder(tmp_path / "data", edit)
-    code = cli.main(["train", "--data", str(data), "--res", "16", "--steps", "2", "--mirror-plane", "official",
-                     "--out", str(tmp_path / "run")])  # fmt: skip
+    code = cli.main(
+        [
+            "train",
+            "--data",
+            str(data),
+            "--res",
+            "16",
+            "--steps",
+            "2",
+            "--mirror-plane",
+            "official",
+            "--out",
+            str(tmp_path / "run"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and says in err, err
 
@@ -454,10 +669,24 @@ def test_bad_resume_checkpoints_are_one_line(tmp_path, capsys):
     Trainer(TrainConfig(**TINY, method="bl", steps=2, out=other)).run()
     truncated = tmp_path / "truncated.pt"
     truncated.write_bytes((other / "checkpoint.pt").read_bytes()[:1000])
-    for path, says in ((tmp_path / "missing", "no checkpoint"), (garbage, "not a readable"),
-                       (truncated, "not a readable"), (other, "a method 'bl' run")):  # fmt: skip
-        code = cli.main(["train", *sum(([f"--{k.replace('_', '-')}", str(v)] for k, v in TINY.items() if k != "grid_res"), []),
-                         "--grid-res", "24", "--resume", str(path), "--out", str(tmp_path / "new")])  # fmt: skip
+    for path, says in (
+        (tmp_path / "missing", "no checkpoint"),
+        (garbage, "not a readable"),
+        (truncated, "not a readable"),
+        (other, "a method 'bl' run"),
+    ):
+        code = cli.main(
+            [
+                "train",
+                *sum(([f"--{k.replace('_', '-')}", str(v)] for k, v in TINY.items() if k != "grid_res"), []),
+                "--grid-res",
+                "24",
+                "--resume",
+                str(path),
+                "--out",
+                str(tmp_path / "new"),
+            ]
+        )
         err = capsys.readouterr().err.strip()
         assert code == 2 and len(err.splitlines()) == 1 and says in err, (path, err)
 
@@ -465,7 +694,19 @@ def test_bad_resume_checkpoints_are_one_line(tmp_path, capsys):
 def test_unwritable_run_folder_and_recording_are_one_line(tmp_path, capsys):
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
-    base = ["train", "--scene", "chair", "--mirror-plane", "official", "--res", "24", "--steps", "2", "--images-every", "0"]
+    base = [
+        "train",
+        "--scene",
+        "chair",
+        "--mirror-plane",
+        "official",
+        "--res",
+        "24",
+        "--steps",
+        "2",
+        "--images-every",
+        "0",
+    ]
     assert cli.main([*base, "--out", str(blocker / "run")]) == 2
     assert "cannot write" in capsys.readouterr().err
     assert cli.main([*base, "--out", str(tmp_path / "run"), "--rrd", str(tmp_path)]) == 2  # a directory
@@ -486,18 +727,51 @@ def signal_and_wait(p: subprocess.Popen, send) -> tuple[str, float]:
 
 def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes_and_a_second_bench_is_refused(tmp_path):
     out = tmp_path / "bench"
-    cmd = [sys.executable, "-m", "flipviz.cli", "bench", "--scenes", "chair", "--methods", "bl,flip", "--configs", "1-3",
-           "--res", "24", "--steps", "400", "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24",
-           "--mirror-plane", "official", "--out", str(out), "--quiet"]  # fmt: skip
-    p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "flipviz.cli",
+        "bench",
+        "--scenes",
+        "chair",
+        "--methods",
+        "bl,flip",
+        "--configs",
+        "1-3",
+        "--res",
+        "24",
+        "--steps",
+        "400",
+        "--batch-rays",
+        "256",
+        "--n-samples",
+        "32",
+        "--grid-res",
+        "24",
+        "--mirror-plane",
+        "official",
+        "--out",
+        str(out),
+        "--quiet",
+    ]
+    p = subprocess.Popen(
+        cmd,
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
     try:
         t_end = time.monotonic() + 240
         while not list(out.glob("runs/*/started.json")):
             assert time.monotonic() < t_end and p.poll() is None, "the bench did not start a run"
             time.sleep(0.3)
         second = one_line_error(subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300))
-        assert "bench folder" in second and f"is in use by flipviz pid {p.pid}" in second, second  # two benches, one --out
+        assert "bench folder" in second and f"is in use by flipviz pid {p.pid}" in second, (
+            second
+        )  # two benches, one --out
         interrupted_at = time.time()
         err, stopped_in = signal_and_wait(p, lambda: os.killpg(p.pid, signal.SIGINT))  # as a terminal sends Ctrl-C
     finally:
@@ -524,12 +798,48 @@ def test_a_sigterm_stops_a_two_worker_bench_with_an_idle_worker_within_seconds(t
     frame = {"file_path": "./test/r_0", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}
     (data / "broken").mkdir(parents=True)  # a scene whose run fails at once: its worker goes idle
     (data / "broken" / "transforms_test.json").write_text(json.dumps({"camera_angle_x": 0.69, "frames": [frame]}))
-    cmd = [sys.executable, "-m", "flipviz.cli", "bench", "--scenes", "chair,broken", "--data-root", str(data),
-           "--methods", "bl", "--configs", "1", "--res", "24", "--steps", "1500", "--batch-rays", "256", "--n-samples", "32",
-           "--grid-res", "24", "--mirror-plane", "official", "--workers", "2", "--cpus-per-run", "1", "--out", str(out),
-           "--quiet"]  # fmt: skip
-    p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "flipviz.cli",
+        "bench",
+        "--scenes",
+        "chair,broken",
+        "--data-root",
+        str(data),
+        "--methods",
+        "bl",
+        "--configs",
+        "1",
+        "--res",
+        "24",
+        "--steps",
+        "1500",
+        "--batch-rays",
+        "256",
+        "--n-samples",
+        "32",
+        "--grid-res",
+        "24",
+        "--mirror-plane",
+        "official",
+        "--workers",
+        "2",
+        "--cpus-per-run",
+        "1",
+        "--out",
+        str(out),
+        "--quiet",
+    ]
+    p = subprocess.Popen(
+        cmd,
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
     try:
         t_end = time.monotonic() + 300
         chair = broken = None
@@ -539,7 +849,11 @@ def test_a_sigterm_stops_a_two_worker_bench_with_an_idle_worker_within_seconds(t
             broken = next(iter(out.glob("runs/broken-*/result.json")), None)
             time.sleep(0.2)
         worker = json.loads((chair / "started.json").read_text())["pid"]
-        send = (lambda: os.killpg(p.pid, signal.SIGTERM)) if target == "group" else (lambda: os.kill(worker, signal.SIGTERM))
+        send = (
+            (lambda: os.killpg(p.pid, signal.SIGTERM))
+            if target == "group"
+            else (lambda: os.kill(worker, signal.SIGTERM))
+        )
         err, stopped_in = signal_and_wait(p, send)
     finally:
         if p.poll() is None:
@@ -554,22 +868,54 @@ def test_a_sigterm_stops_a_two_worker_bench_with_an_idle_worker_within_seconds(t
 
 
 # ------------------------------------------------------------------------- 11: the app
-@pytest.mark.parametrize("args, says", [
-    (["--host", "10.99.99.99"], "cannot serve"), (["--device", "cuda"], "CUDA"), (["--resume", "/nonexistent"], "no checkpoint"),
-    (["--port", "70000"], "--port must be in 0..65535"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["--host", "10.99.99.99"], "cannot serve"),
+        (["--device", "cuda"], "CUDA"),
+        (["--resume", "/nonexistent"], "no checkpoint"),
+        (["--port", "70000"], "--port must be in 0..65535"),
+    ],
+)
 def test_app_refuses_bad_input_before_serving(tmp_path, capsys, args, says):
-    code = cli.main(["app", "--scene", "chair", "--res", "24", "--port", "0", "--no-rrd", "--out", str(tmp_path / "r"), *args])
+    code = cli.main(
+        ["app", "--scene", "chair", "--res", "24", "--port", "0", "--no-rrd", "--out", str(tmp_path / "r"), *args]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and says in err, err
 
 
 def start_app(tmp_path, *extra: str) -> subprocess.Popen:
     port = [] if "--port" in extra else ["--port", "0"]
-    cmd = [sys.executable, "app.py", "--scene", "chair", "--res", "24", *port, "--no-rrd", "--steps", "100000",
-           "--batch-rays", "256", "--n-samples", "32", "--grid-res", "24", "--out", str(tmp_path / "app"), *extra]  # fmt: skip
-    return subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"))  # fmt: skip
+    cmd = [
+        sys.executable,
+        "app.py",
+        "--scene",
+        "chair",
+        "--res",
+        "24",
+        *port,
+        "--no-rrd",
+        "--steps",
+        "100000",
+        "--batch-rays",
+        "256",
+        "--n-samples",
+        "32",
+        "--grid-res",
+        "24",
+        "--out",
+        str(tmp_path / "app"),
+        *extra,
+    ]
+    return subprocess.Popen(
+        cmd,
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
 
 
 def wait_served(p: subprocess.Popen) -> str:
@@ -621,8 +967,12 @@ def test_res_wider_than_the_data_is_refused(tmp_path):
 
     (tmp_path / "test").mkdir()
     cv2.imwrite(str(tmp_path / "test" / "r_0.png"), np.full((8, 8, 4), 255, np.uint8))
-    doc = {"camera_angle_x": 0.69, "frames": [{"file_path": "./test/r_0", "transform_matrix": look_at(
-        np.array([0.0, 4.0, 1.0]), np.zeros(3)).tolist()}]}  # fmt: skip
+    doc = {
+        "camera_angle_x": 0.69,
+        "frames": [
+            {"file_path": "./test/r_0", "transform_matrix": look_at(np.array([0.0, 4.0, 1.0]), np.zeros(3)).tolist()}
+        ],
+    }
     (tmp_path / "transforms_test.json").write_text(json.dumps(doc))
     assert load_blender(tmp_path, res=8).resolution == (8, 8)
     with pytest.raises(UserError, match="does not upscale"):

@@ -66,16 +66,30 @@ def first(batches: list, name: str):
 
 
 def rows_by_step(batches: list, name: str) -> dict[int, object]:
-    return {s: v for b in batches if name in b.schema.names
-            for s, v in zip(b.column("step").to_pylist(), b.column(name).to_pylist())}
+    return {
+        s: v
+        for b in batches
+        if name in b.schema.names
+        for s, v in zip(b.column("step").to_pylist(), b.column(name).to_pylist())
+    }
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """A real Flip+U run on the built-in chair, recorded to a file and served to a local web viewer."""
     out = tmp_path_factory.mktemp("rerun") / "run"
-    cfg = TrainConfig(scene="chair", res=32, steps=STEPS, log_every=LOG_EVERY, images_every=IMAGES_EVERY,
-                      batch_rays=256, out=out, checkpoint_every=0, rerun_serve=True, mirror_plane="official")
+    cfg = TrainConfig(
+        scene="chair",
+        res=32,
+        steps=STEPS,
+        log_every=LOG_EVERY,
+        images_every=IMAGES_EVERY,
+        batch_rays=256,
+        out=out,
+        checkpoint_every=0,
+        rerun_serve=True,
+        mirror_plane="official",
+    )
     trainer = Trainer(cfg)
     obs = make_rerun_observer(cfg, trainer.run_dir, bake=trainer.point_cloud, splats_every=1)
     keep = Keep()
@@ -99,10 +113,18 @@ def _check_served(obs) -> dict:
 
 def test_static_scene_entities(run):
     rrd, setup = run["rrd"], run["keep"].setup
-    assert first(rrd["/world"], "ViewCoordinates:xyz") == rr.components.ViewCoordinatesBatch(
-        rr.ViewCoordinates.RIGHT_HAND_Z_UP).as_arrow_array().to_pylist()[0]
-    for e in ("/world/sphere", "/world/mirror_plane", "/world/mirror_plane/normal", "/world/mirror_plane/outline",
-              "/world/bbox", "/run"):
+    assert (
+        first(rrd["/world"], "ViewCoordinates:xyz")
+        == rr.components.ViewCoordinatesBatch(rr.ViewCoordinates.RIGHT_HAND_Z_UP).as_arrow_array().to_pylist()[0]
+    )
+    for e in (
+        "/world/sphere",
+        "/world/mirror_plane",
+        "/world/mirror_plane/normal",
+        "/world/mirror_plane/outline",
+        "/world/bbox",
+        "/run",
+    ):
         assert e in rrd, e
     assert first(rrd["/world/sphere"], "Ellipsoids3D:half_sizes") == pytest.approx([setup.sphere_radius] * 3)
     rub = rr.components.ViewCoordinatesBatch(rr.ViewCoordinates.RUB).as_arrow_array().to_pylist()[0]
@@ -148,7 +170,9 @@ def test_the_refined_plane_moves_in_the_recording(run):
     assert last.plane is not None and last.plane_err_deg is not None
     v = np.asarray(normals[last.step][0])
     assert v / np.linalg.norm(v) == pytest.approx(last.plane.normal, abs=1e-5)
-    assert rows_by_step(rrd["/curves/plane/err_deg"], "Scalars:scalars")[last.step] == pytest.approx([last.plane_err_deg])
+    assert rows_by_step(rrd["/curves/plane/err_deg"], "Scalars:scalars")[last.step] == pytest.approx(
+        [last.plane_err_deg]
+    )
     assert sorted(rows_by_step(rrd["/curves/plane/err_offset"], "Scalars:scalars")) == logged
 
 
@@ -159,8 +183,10 @@ def test_beta2_frames_equal_the_model_maps(run):
     for ev in keep.images:
         for v in ev.mirror_views:
             b = rrd[f"/views/mirror/{entity_name(v.name)}/beta2"]
-            buf, fmt, rng = (rows_by_step(b, c)[ev.step] for c in ("DepthImage:buffer", "DepthImage:format",
-                                                                   "DepthImage:depth_range"))
+            buf, fmt, rng = (
+                rows_by_step(b, c)[ev.step]
+                for c in ("DepthImage:buffer", "DepthImage:format", "DepthImage:depth_range")
+            )
             fmt = fmt[0]
             got = np.frombuffer(bytes(buf[0]), dtype=np.float16).reshape(fmt["height"], fmt["width"])
             np.testing.assert_allclose(got.astype(np.float32), v.beta2, rtol=1e-3, atol=1e-7)  # float16 storage
@@ -273,8 +299,16 @@ def test_the_field_is_recorded_as_gaussian_splats(run, tmp_path):
 
     centers = rows_by_step(run["rrd"]["/world/field"], "GaussianSplats3D:centers")
     assert sorted(centers) == [IMAGES_EVERY, STEPS]  # splats_every=1: each ImagesEvent; the end is logged once
-    cfg = TrainConfig(scene="chair", res=32, steps=200, images_every=100, batch_rays=512, out=tmp_path / "run",
-                      checkpoint_every=0, mirror_plane="official")  # fmt: skip
+    cfg = TrainConfig(
+        scene="chair",
+        res=32,
+        steps=200,
+        images_every=100,
+        batch_rays=512,
+        out=tmp_path / "run",
+        checkpoint_every=0,
+        mirror_plane="official",
+    )
     trainer = Trainer(cfg)  # long enough for solid cells
     obs = make_rerun_observer(cfg, trainer.run_dir, bake=trainer.point_cloud, splats_every=2)
     trainer.add_observer(obs)

@@ -5,13 +5,22 @@ import os
 import numpy as np
 import pytest
 
-from flipviz.data.scenes import BASE_SCENES, TURN_OFFSET
-from flipviz.geometry.mirror import exact_reflected_camera
-from flipviz.data import SCENES, Camera, DatasetError, build_mesh, load_builtin, orbit_camera, render_view, symmetry_plane
+from flipviz.data import (
+    SCENES,
+    Camera,
+    DatasetError,
+    build_mesh,
+    load_builtin,
+    orbit_camera,
+    render_view,
+    symmetry_plane,
+)
 from flipviz.data.builtin import _cache_path
 from flipviz.data.cameras import look_at
 from flipviz.data.protocol import protocol_indices
 from flipviz.data.raycast import LIGHT_DIR, render_mesh
+from flipviz.data.scenes import BASE_SCENES, TURN_OFFSET
+from flipviz.geometry.mirror import exact_reflected_camera
 
 RES = 32
 

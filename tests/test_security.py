@@ -17,7 +17,9 @@ from flipviz.training.config import TrainConfig
 from flipviz.training.run import open_run
 from flipviz.training.trainer import Trainer
 
-TINY = dict(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, mirror_plane="official")
+TINY = dict(
+    scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, mirror_plane="official"
+)
 
 
 @pytest.fixture(autouse=True)
@@ -59,8 +61,11 @@ def test_a_pickle_payload_in_a_checkpoint_never_runs(run_folder, tmp_path, capsy
     for open_it in (lambda: load_checkpoint(shared), lambda: open_run(shared)):  # resume, report, video, Compare's B
         with pytest.raises(UserError, match="never loads those"):
             open_it()
-    for args in (["video", str(shared)], ["report", str(shared)],
-                 ["train", "--scene", "chair", "--res", "24", "--mirror-plane", "official", "--resume", str(shared)]):  # fmt: skip
+    for args in (
+        ["video", str(shared)],
+        ["report", str(shared)],
+        ["train", "--scene", "chair", "--res", "24", "--mirror-plane", "official", "--resume", str(shared)],
+    ):
         assert cli.main(args) == 2
         assert "never loads those" in one_line(capsys)
     assert not marker.exists()
@@ -84,8 +89,20 @@ def test_a_crafted_checkpoint_is_one_line_on_resume(run_folder, tmp_path, capsys
     damage(state)
     bad = tmp_path / "bad.pt"
     torch.save(state, bad)
-    args = ["train", *sum(([f"--{k.replace('_', '-')}", str(v)] for k, v in TINY.items() if k != "grid_res"), []),
-            "--grid-res", "24", "--method", "flip+u", "--steps", "5", "--resume", str(bad), "--out", str(tmp_path / "new")]  # fmt: skip
+    args = [
+        "train",
+        *sum(([f"--{k.replace('_', '-')}", str(v)] for k, v in TINY.items() if k != "grid_res"), []),
+        "--grid-res",
+        "24",
+        "--method",
+        "flip+u",
+        "--steps",
+        "5",
+        "--resume",
+        str(bad),
+        "--out",
+        str(tmp_path / "new"),
+    ]
     assert cli.main(args) == 2
     assert says in one_line(capsys)
 

@@ -55,7 +55,9 @@ def test_depth_of_a_known_plane_and_its_error():
     _, d = cam.rays()
     cos = -d[:, 2].reshape(48, 64)  # the ray's angle to the straight-down axis
     assert np.allclose(depth, 4.0 / cos, rtol=1e-5)
-    sky = Camera(look_at(np.array([0.0, 0.0, 4.05]), np.array([0.0, 0.0, 9.0]), up=np.array([0.0, 1.0, 0.0])), 8, 8, 6.0)
+    sky = Camera(
+        look_at(np.array([0.0, 0.0, 4.05]), np.array([0.0, 0.0, 9.0]), up=np.array([0.0, 1.0, 0.0])), 8, 8, 6.0
+    )
     assert np.isinf(render_depth(floor, sky)).all()
     alpha = np.ones((48, 64), np.float32)
     assert depth_abs_error(depth + 0.25, depth, alpha) == pytest.approx(0.25, abs=1e-5)

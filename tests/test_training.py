@@ -16,7 +16,9 @@ from flipviz.training.events import Observer
 from flipviz.training.trainer import Trainer
 
 RES = 24
-TINY = dict(res=RES, batch_rays=512, n_samples=32, grid_res=(32,), mirror_plane="official")  # auto: tests/test_plane_estimate.py
+TINY = dict(
+    res=RES, batch_rays=512, n_samples=32, grid_res=(32,), mirror_plane="official"
+)  # auto: tests/test_plane_estimate.py
 
 
 @pytest.fixture(autouse=True)
@@ -106,7 +108,9 @@ def test_the_training_batch_psnr_averages_the_squared_error_over_rays_and_channe
     """The step event's "psnr" (the training batch's) is defined as the test PSNR is: -10 log10 of the
     squared error averaged over the batch's rays and colour channels. Read back here from the batch the
     step rendered and the targets of the rays it drew."""
-    tr = Trainer(TrainConfig(method="flip+u", steps=1, log_every=1, images_every=0, out=tmp_path / "run", **TINY), scene=chair)
+    tr = Trainer(
+        TrainConfig(method="flip+u", steps=1, log_every=1, images_every=0, out=tmp_path / "run", **TINY), scene=chair
+    )
     batch: dict = {}
     render, sample = tr.model.render_rays, tr.flip.sample
 
@@ -175,8 +179,9 @@ def test_nan_stops_cleanly_and_keeps_last_good_checkpoint(chair, tmp_path):
 
 def test_ctrl_c_in_the_loop_and_in_the_final_evaluation(chair, tmp_path):
     """Ctrl-C stops at a step boundary; a second one during the evaluation skips it; checkpoint kept."""
-    cfg = TrainConfig(method="flip+u", steps=40, log_every=5, checkpoint_every=0, images_every=0,
-                      out=tmp_path / "run", **TINY)  # fmt: skip
+    cfg = TrainConfig(
+        method="flip+u", steps=40, log_every=5, checkpoint_every=0, images_every=0, out=tmp_path / "run", **TINY
+    )
     tr = Trainer(cfg, scene=chair)
 
     class CtrlC(Observer):
@@ -218,7 +223,7 @@ class PauseAt(Observer):
 def test_pause_resume_stop(chair, tmp_path):
     cfg = TrainConfig(
         method="bl", steps=100000, images_every=0, log_every=1, out=tmp_path / "run", eval_on_stop=False, **TINY
-    )  # fmt: skip
+    )
     tr = Trainer(cfg, scene=chair)
     rec, pauser = Recorder(), PauseAt(tr, at=3)
     tr.add_observer(pauser)
@@ -259,7 +264,9 @@ def test_lpips_network_loads_weight_files(tmp_path, monkeypatch):
     torch.manual_seed(0)
     net = ev.LPIPSAlex()
     torch.save({f"features.{k}": v for k, v in net.features.state_dict().items()}, ck / ev.ALEXNET_FILE)
-    torch.save({f"lin{i}.model.1.weight": l.weight.detach().abs() for i, l in enumerate(net.lins)}, ck / ev.LPIPS_FILE)
+    torch.save(
+        {f"lin{i}.model.1.weight": lin.weight.detach().abs() for i, lin in enumerate(net.lins)}, ck / ev.LPIPS_FILE
+    )
     monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
     rng = np.random.default_rng(0)
     a, b = rng.random((64, 64, 3)).astype(np.float32), rng.random((64, 64, 3)).astype(np.float32)
@@ -275,9 +282,17 @@ def test_flip_u_beats_baseline_on_unobserved_views(chair, tmp_path):
     psnr = {}
     for method in ("bl", "flip+u"):
         cfg = TrainConfig(
-            method=method, mirror_plane="official", steps=150, batch_rays=1024, n_samples=48, grid_res=(32, 48),
-            res=RES, images_every=0, checkpoint_every=0, out=tmp_path / method,
-        )  # fmt: skip
+            method=method,
+            mirror_plane="official",
+            steps=150,
+            batch_rays=1024,
+            n_samples=48,
+            grid_res=(32, 48),
+            res=RES,
+            images_every=0,
+            checkpoint_every=0,
+            out=tmp_path / method,
+        )
         psnr[method] = Trainer(cfg, scene=chair).run()["psnr"]
     assert psnr["flip+u"] > psnr["bl"] + 1.0, psnr
 
@@ -291,7 +306,9 @@ def test_ba_recovers_a_perturbed_mirrored_pose_at_default_settings(tmp_path):
 
     from flipviz.geometry.poses import pose_errors
 
-    cfg = TrainConfig(mirror_plane="scene", refine_plane=False, out=tmp_path / "run", images_every=0, checkpoint_every=0)
+    cfg = TrainConfig(
+        mirror_plane="scene", refine_plane=False, out=tmp_path / "run", images_every=0, checkpoint_every=0
+    )
     tr = Trainer(cfg)
     assert (cfg.method, cfg.res, cfg.steps) == ("flip+u", 100, 600)
     k = tr.training.mirror_ids[3]

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import asyncio
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import msgspec
 import numpy as np
@@ -39,7 +40,11 @@ def decode_frame(raw: bytes) -> list[dict]:
 
     def resolve(v):
         if isinstance(v, dict):
-            return buffers[v["__binary_index"]] if "__binary_index" in v and "dtype" in v else {k: resolve(x) for k, x in v.items()}
+            return (
+                buffers[v["__binary_index"]]
+                if "__binary_index" in v and "dtype" in v
+                else {k: resolve(x) for k, x in v.items()}
+            )
         return [resolve(x) for x in v] if isinstance(v, list) else v
 
     return [resolve(m) for m in inner["messages"]]
@@ -62,7 +67,7 @@ class ViserTestClient:
         self._reader: asyncio.Task | None = None
         self._new = asyncio.Event()
 
-    async def __aenter__(self) -> "ViserTestClient":
+    async def __aenter__(self) -> ViserTestClient:
         self.ws = await websockets.connect(
             self.url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None, compression=None
         )
@@ -120,18 +125,31 @@ class ViserTestClient:
     async def send_pose(self, wxyz, position, look_at, fov=0.9, size=(480, 640), up=(0.0, 0.0, 1.0)) -> None:
         """The browser's report of its camera (what it sends after every move, and after the server moved it)."""
         await self.send(
-            "ViewerCameraMessage", wxyz=tuple(float(v) for v in wxyz), position=tuple(float(v) for v in position),
-            fov=float(fov), near=0.01, far=100.0, image_height=int(size[0]), image_width=int(size[1]),
-            look_at=tuple(float(v) for v in look_at), up_direction=tuple(float(v) for v in up),
-        )  # fmt: skip
+            "ViewerCameraMessage",
+            wxyz=tuple(float(v) for v in wxyz),
+            position=tuple(float(v) for v in position),
+            fov=float(fov),
+            near=0.01,
+            far=100.0,
+            image_height=int(size[0]),
+            image_width=int(size[1]),
+            look_at=tuple(float(v) for v in look_at),
+            up_direction=tuple(float(v) for v in up),
+        )
 
     async def click(self, label: str) -> None:
         await self.send("GuiUpdateMessage", uuid=self.gui[label]["uuid"], updates={"value": True})
 
     async def click_scene(self, origin, direction, screen_pos=(0.5, 0.5)) -> None:
         """A click in the 3D view: the world ray through the clicked pixel, as the browser sends it."""
-        await self.send("ScenePointerMessage", event_type="click", ray_origin=tuple(float(v) for v in origin),
-                        ray_direction=tuple(float(v) for v in direction), screen_pos=(tuple(screen_pos),), modifier=None)  # fmt: skip
+        await self.send(
+            "ScenePointerMessage",
+            event_type="click",
+            ray_origin=tuple(float(v) for v in origin),
+            ray_direction=tuple(float(v) for v in direction),
+            screen_pos=(tuple(screen_pos),),
+            modifier=None,
+        )
 
     async def set_value(self, label: str, value) -> None:
         await self.send("GuiUpdateMessage", uuid=self.gui[label]["uuid"], updates={"value": value})
@@ -158,7 +176,7 @@ class ViserTestClient:
             self._new.clear()
             try:
                 await asyncio.wait_for(self._new.wait(), timeout=min(left, 0.5))
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
 
     async def wait_gui(self, label: str, timeout: float = 20.0) -> dict:

@@ -70,7 +70,7 @@ TABLE2: dict[tuple[bool, bool], dict[str, float]] = {
 NERF_SYNTHETIC: dict[str, str] = {
     "chair": "Chairs", "chairs": "Chairs", "lego": "Lego", "materials": "Materials", "ship": "Ship",
     "drums": "Drum", "drum": "Drum", "ficus": "Ficus", "hotdog": "Hotdog", "mic": "Mic",
-}  # fmt: skip
+}
 
 
 def paper_row(scene: str) -> str | None:

@@ -12,7 +12,7 @@ from flipviz.files import atomic_path
 
 
 def run_ray(tasks: list[RunTask], address: str | None, cpus_per_run: int, gpus_per_run: float,
-            on_result: Callable[[dict], None]) -> None:  # fmt: skip
+            on_result: Callable[[dict], None]) -> None:
     """Spread tasks over a Ray cluster (`address`, or a local Ray when None / 'local')."""
     try:
         import ray
@@ -34,7 +34,7 @@ def run_ray(tasks: list[RunTask], address: str | None, cpus_per_run: int, gpus_p
 
 
 def _run_ray_tasks(ray, tasks: list[RunTask], cpus_per_run: int, gpus_per_run: float, env_vars: dict,
-                   on_result: Callable[[dict], None]) -> None:  # fmt: skip
+                   on_result: Callable[[dict], None]) -> None:
     remote = ray.remote(execute_run).options(
         num_cpus=cpus_per_run, num_gpus=gpus_per_run, max_retries=0, runtime_env={"env_vars": env_vars}
     )

@@ -42,7 +42,7 @@ def ablation_rows(rows: list[dict], scene: str, ba: bool, u: bool) -> list[dict]
     return [
         r for r in ok_rows(rows)
         if r["scene"] == scene and r["method"] in ("flip", "flip+u") and r["ba"] == ba and r["uncertainty"] == u
-    ]  # fmt: skip
+    ]
 
 
 def paper_scene(rows: list[dict], scene: str) -> str | None:

@@ -35,12 +35,12 @@ from flipviz.training.config import TrainConfig, preset_config
 RUN_SETTINGS = (
     "res", "steps", "batch_rays", "field", "n_samples", "grid_res", "mirror_plane", "mirror_pose", "refine_plane", "seed", "device",
     "preset", "unconfident_plane", "after_drop",
-)  # fmt: skip
+)
 # TrainConfig fields that change where a run writes or what it logs, not what it computes.
 NOT_IN_KEY = (
     "out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop",
     "plane_file",
-)  # fmt: skip
+)
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ class RunSpec:
             images_every=0,  # nobody watches: skip the periodic test renders
             plane_file=planes / self.plane_name(cfg) if shared else None,
             **{k: getattr(cfg, k) for k in RUN_SETTINGS},
-        )  # fmt: skip
+        )
 
     def plane_name(self, cfg: BenchConfig) -> str:
         """The estimate's file: what it depends on (the inputs at the run's resolution, the seed, the device)."""
@@ -85,7 +85,7 @@ class RunSpec:
             "scene": self.scene, "data": self.data or "", "method": self.method, "config": self.config,
             "ba": flip and self.ba, "uncertainty": self.method in ("bl+u", "flip+u") and self.uncertainty,
             "default_flags": self.ba and self.uncertainty,
-        }  # fmt: skip
+        }
 
 
 def resolve_scene(name: str, data_root: Path | None) -> tuple[str, str | None]:
@@ -206,9 +206,9 @@ def _run_bench_locked(cfg: BenchConfig, out: Path) -> Path:
                     labels=s.labels(), threads=threads, progress=not cfg.quiet,
                     keep_checkpoint=cfg.keep_checkpoints, twin=str(out / "runs" / t.key(cfg)) if (t := twin_of(s, cfg)) else "")
             for k, s in todo
-        ]  # fmt: skip
+        ]
         bar = tqdm(total=len(specs), initial=len(results), desc="bench", unit="run", position=0,
-                   dynamic_ncols=True, disable=cfg.quiet, file=sys.stderr)  # fmt: skip
+                   dynamic_ncols=True, disable=cfg.quiet, file=sys.stderr)
 
         def on_result(res: dict) -> None:
             key = res["key"]
@@ -236,7 +236,7 @@ def _run_bench_locked(cfg: BenchConfig, out: Path) -> Path:
             bar.close()
             n_ok = sum(r.get("status") == "ok" for r in results.values())
             log(f"interrupted: {n_ok} of {len(specs)} runs done; run the same command again to resume (finished "
-                "runs are skipped, interrupted ones continue from their checkpoints)", logfile)  # fmt: skip
+                "runs are skipped, interrupted ones continue from their checkpoints)", logfile)
             raise
         finally:
             bar.close()

@@ -19,17 +19,17 @@ CSV_FIELDS = (
     "refined_error_deg", "refined_error_offset", "reused_from", "train_seconds",
     "wall_seconds", "steps", "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
     "flipviz_version", "torch_version", "numpy_version",
-)  # fmt: skip
+)
 PLANE_KEYS = {  # results.csv column: the key in metrics.json's "plane" (Trainer.report)
     "plane_confidence": "confidence", "mirrors_trained": "trained", "mirrors_dropped_at": "dropped_at", "field_restarted_at": "restarted_at",
     "plane_error_deg": "error_deg",
     "plane_error_offset": "error_offset", "refined_error_deg": "refined_error_deg", "refined_error_offset": "refined_error_offset",
-}  # fmt: skip
+}
 METRICS = ("psnr", "ssim", "lpips")
 STRUCTURE = ("iou", "psnr_object", "depth_abs")  # training/evaluate.py: what the object itself scores
 DIGITS = {"psnr": 2, "ssim": 3, "lpips": 3, "iou": 3, "psnr_object": 2, "depth_abs": 3}
 LABELS = {"psnr": "PSNR", "ssim": "SSIM", "lpips": "LPIPS", "iou": "silhouette IoU", "psnr_object": "PSNR in the object",
-          "depth_abs": "depth error"}  # fmt: skip
+          "depth_abs": "depth error"}
 
 
 def metric(r: dict, key: str):
@@ -50,7 +50,7 @@ def flat_row(r: dict) -> dict:
     tc, v = r.get("train_config", {}), r.get("versions", {})
     row = {k: metric(r, k) for k in CSV_FIELDS}
     row.update(res=tc.get("res"), seed=tc.get("seed"), field=tc.get("field"), device=tc.get("device"),
-               flipviz_version=v.get("flipviz"), torch_version=v.get("torch"), numpy_version=v.get("numpy"))  # fmt: skip
+               flipviz_version=v.get("flipviz"), torch_version=v.get("torch"), numpy_version=v.get("numpy"))
     if row["lpips"] is None and r.get("status") == "ok":
         row["lpips"] = "unavailable"
     return row
@@ -178,7 +178,7 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
     head = ["Scene", "Config"] + [METHOD_LABELS[m] for m in methods]
     if both:
         head += ["gain Flip+U - B/L", "gain in the object", "angle to nearest mirror (deg)", "tests within 30 deg",
-                 "plane confidence (Flip+U)", "plane error before -> after training (Flip+U)"]  # fmt: skip
+                 "plane confidence (Flip+U)", "plane error before -> after training (Flip+U)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for scene in scenes(rows):
         for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
@@ -275,7 +275,7 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
     parts += ["## PSNR per configuration, and why a configuration gains or loses", "",
               "Coverage: the angle from each unobserved view to the nearest mirrored camera (about the object's centre), "
               "mean over the 8 views, and the share of views within 30 degrees of one.", "",
-              per_config_table(rows, methods), ""]  # fmt: skip
+              per_config_table(rows, methods), ""]
     parts += ["## Mean training time per run (s)", "", time_table(rows, methods), ""]
     if failed:
         parts += ["## Failed runs", ""]

@@ -64,7 +64,7 @@ def _progress_observer(task: RunTask):
     lab = task.labels
     label = lab["method"] if lab.get("default_flags", True) else (
         f"{lab['method']} (ba={int(lab['ba'])},u={int(lab['uncertainty'])})"
-    )  # fmt: skip
+    )
     if _inside_ray_worker():
         from ray.experimental.tqdm_ray import tqdm as ray_tqdm
 
@@ -106,7 +106,7 @@ def execute_run(task: RunTask | dict) -> dict:
         "psnr": None, "ssim": None, "lpips": None, "train_seconds": None, "steps": None,
         "started": started, "finished": None, "threads": task.threads, "host": host,
         "train_config": task.train,
-    }  # fmt: skip
+    }
     try:
         result["versions"] = versions()
         from flipviz.training.run import make_trainer, run_config
@@ -132,7 +132,7 @@ def execute_run(task: RunTask | dict) -> dict:
             lpips=lpips if isinstance(lpips, str) else _num(lpips),
             train_seconds=_num(metrics.get("train_seconds")), steps=metrics.get("steps"),
             metrics={k: v for k, v in metrics.items() if k != "per_view"}, per_view=metrics.get("per_view", []),
-        )  # fmt: skip
+        )
     except BaseException as e:  # a crashed run is recorded, never fatal for the bench
         if isinstance(e, KeyboardInterrupt):
             raise
@@ -168,7 +168,7 @@ def _reuse_twin(trainer, twin_dir: Path, twin: dict) -> dict:
 
     trainer.close()
     m = {**twin["metrics"], **trainer.report(), "per_view": twin.get("per_view", []), "reused_from": twin["key"],
-         "run_dir": str(trainer.run_dir)}  # fmt: skip
+         "run_dir": str(trainer.run_dir)}
     shutil.copytree(twin_dir / "test_renders", trainer.run_dir / "test_renders", dirs_exist_ok=True)
     artifacts.write_metrics(trainer.run_dir, m)
     return m
@@ -197,6 +197,6 @@ def died_result(task: RunTask, error: str = "worker process died (killed or out 
     """The result of a run whose process died under it, written to its folder."""
     res = {"key": task.key, "run_id": uuid.uuid4().hex, **task.labels, "status": "failed", "error": error,
            "psnr": None, "ssim": None, "lpips": None, "train_seconds": None, "steps": None, "started": None,
-           "finished": time.time(), "train_config": task.train, "versions": {}}  # fmt: skip
+           "finished": time.time(), "train_config": task.train, "versions": {}}
     write_json(Path(task.run_dir) / RESULT_FILE, res)
     return res

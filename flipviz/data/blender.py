@@ -10,8 +10,8 @@ when the views are not the contiguous orbit 0..N-1).
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
@@ -81,12 +81,15 @@ def load_blender(
             raise DatasetError(f"image {ipath} listed in {jpath.name} not found")
         rgba = read_rgba(ipath)
         if res is not None and res > rgba.shape[1]:
-            raise DatasetError(f"--res {res} is wider than the images of {root} ({rgba.shape[1]} px); flipviz does not upscale")
+            raise DatasetError(
+                f"--res {res} is wider than the images of {root} ({rgba.shape[1]} px); flipviz does not upscale"
+            )
         if size is None:
             size = rgba.shape[:2]
         elif rgba.shape[:2] != size:
             raise DatasetError(
-                f"images have inconsistent sizes: {ipath.name} is {rgba.shape[1]}x{rgba.shape[0]}, expected {size[1]}x{size[0]}"
+                f"images have inconsistent sizes: {ipath.name} is {rgba.shape[1]}x{rgba.shape[0]}, "
+                f"expected {size[1]}x{size[0]}"
             )
         rgb, alpha = composite_on_white(rgba, res)
         H, W = rgb.shape[:2]

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
@@ -142,6 +142,8 @@ def load_builtin(name: str, res: int = 100, cache: bool = True, indices: Iterabl
         bbox=np.stack([bounds[0] - pad, bounds[1] + pad]),
         symmetry_plane=plane,
         source=f"builtin:{name}",
-        meta={"orbit": f"azimuth {DEG_PER_INDEX} deg/index from +y, elevation {ELEVATION_DEG} deg, radius {RADIUS}",
-              "renderer_version": RENDERER_VERSION},
+        meta={
+            "orbit": f"azimuth {DEG_PER_INDEX} deg/index from +y, elevation {ELEVATION_DEG} deg, radius {RADIUS}",
+            "renderer_version": RENDERER_VERSION,
+        },
     )

@@ -57,9 +57,7 @@ class Camera:
     @property
     def K(self) -> np.ndarray:
         """3x3 intrinsics for a y-down image (OpenCV/Rerun/viser style pixel coordinates)."""
-        return np.array(
-            [[self.focal, 0.0, self.width / 2.0], [0.0, self.focal, self.height / 2.0], [0.0, 0.0, 1.0]]
-        )
+        return np.array([[self.focal, 0.0, self.width / 2.0], [0.0, self.focal, self.height / 2.0], [0.0, 0.0, 1.0]])
 
     @property
     def fov_y(self) -> float:
@@ -70,15 +68,15 @@ class Camera:
     def fov_x(self) -> float:
         return 2.0 * float(np.arctan(0.5 * self.width / self.focal))
 
-    def with_pose(self, c2w: np.ndarray, name: str | None = None) -> "Camera":
+    def with_pose(self, c2w: np.ndarray, name: str | None = None) -> Camera:
         return replace(self, c2w=np.asarray(c2w, dtype=np.float64), name=self.name if name is None else name)
 
-    def resized(self, width: int, height: int | None = None) -> "Camera":
+    def resized(self, width: int, height: int | None = None) -> Camera:
         """Same pose and field of view, another resolution."""
         height = round(self.height * width / self.width) if height is None else height
         return replace(self, width=int(width), height=int(height), focal=self.focal * width / self.width)
 
-    def cropped(self, width: int) -> "Camera":
+    def cropped(self, width: int) -> Camera:
         """The centre `width` columns of this view: same pose, focal and height."""
         return replace(self, width=int(width))
 
@@ -142,7 +140,7 @@ def axes_intersection(points: np.ndarray, view_dirs: np.ndarray) -> np.ndarray |
     return np.linalg.solve(M, b)
 
 
-def looked_at_point(cameras: "list[Camera]") -> np.ndarray | None:
+def looked_at_point(cameras: list[Camera]) -> np.ndarray | None:
     """Where a set of cameras looks: the least-squares meeting point of their optical axes."""
     return axes_intersection(np.stack([c.center for c in cameras]), np.stack([-c.c2w[:3, 2] for c in cameras]))
 

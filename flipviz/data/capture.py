@@ -58,13 +58,23 @@ class Intrinsics:
     cy: float
     dist: tuple[float, ...] = ()  # OpenCV (k1, k2, p1, p2[, k3[, k4, k5, k6]]); () = none
 
-    def check(self, where: str) -> "Intrinsics":
+    def check(self, where: str) -> Intrinsics:
         """Sizes up to 65536 px, focal lengths in (0, 1e6] px, the principal point within ten image
         sizes of the centre, |distortion| <= 1000: anything beyond is a damaged file, not a camera."""
         w, h, vals = self.width, self.height, [self.fx, self.fy, self.cx, self.cy, *self.dist]
-        if not (0 < w <= 65536 and 0 < h <= 65536 and np.all(np.isfinite(vals)) and 0 < self.fx <= 1e6 and 0 < self.fy <= 1e6
-                and abs(self.cx - w / 2) <= 10 * w and abs(self.cy - h / 2) <= 10 * h and all(abs(d) <= 1e3 for d in self.dist)):  # fmt: skip
-            raise DatasetError(f"{where}: bad intrinsics (w {w}, h {h}, fx {self.fx}, fy {self.fy}, cx {self.cx}, cy {self.cy})")
+        if not (
+            0 < w <= 65536
+            and 0 < h <= 65536
+            and np.all(np.isfinite(vals))
+            and 0 < self.fx <= 1e6
+            and 0 < self.fy <= 1e6
+            and abs(self.cx - w / 2) <= 10 * w
+            and abs(self.cy - h / 2) <= 10 * h
+            and all(abs(d) <= 1e3 for d in self.dist)
+        ):
+            raise DatasetError(
+                f"{where}: bad intrinsics (w {w}, h {h}, fx {self.fx}, fy {self.fy}, cx {self.cx}, cy {self.cy})"
+            )
         if len(self.dist) not in (0, 4, 5, 8):
             raise DatasetError(f"{where}: {len(self.dist)} distortion coefficients; OpenCV takes 4, 5 or 8")
         return self
@@ -72,8 +82,12 @@ class Intrinsics:
     @property
     def is_ideal(self) -> bool:
         """Already the flipviz camera: square pixels, centred principal point, no distortion."""
-        return (self.fx == self.fy and abs(self.cx - self.width / 2) < 1e-6 and abs(self.cy - self.height / 2) < 1e-6
-                and not any(self.dist))  # fmt: skip
+        return (
+            self.fx == self.fy
+            and abs(self.cx - self.width / 2) < 1e-6
+            and abs(self.cy - self.height / 2) < 1e-6
+            and not any(self.dist)
+        )
 
 
 def to_pinhole(rgba: np.ndarray, intr: Intrinsics, width: int | None) -> tuple[np.ndarray, np.ndarray, float]:
@@ -126,9 +140,13 @@ def capture_view(
         rgba[..., 3] = read_mask(mask, rgba.shape[:2])
     masked = mask is not None or bool((rgba[..., 3] < 1).any())
     if res is not None and res > rgba.shape[1]:
-        raise DatasetError(f"--res {res} is wider than the images of {ipath.parent} ({rgba.shape[1]} px); flipviz does not upscale")
+        raise DatasetError(
+            f"--res {res} is wider than the images of {ipath.parent} ({rgba.shape[1]} px); flipviz does not upscale"
+        )
     rgb, alpha, focal = to_pinhole(rgba, intr, res)
-    return View(Camera(c2w, rgb.shape[1], rgb.shape[0], focal, name=ipath.stem), rgb, alpha if masked else None, index=index)
+    return View(
+        Camera(c2w, rgb.shape[1], rgb.shape[0], focal, name=ipath.stem), rgb, alpha if masked else None, index=index
+    )
 
 
 def hull_box(views: list[View], res: int = HULL_RES) -> np.ndarray | None:
@@ -223,7 +241,9 @@ def make_capture(
     if box is None:
         target = looked_at_point([v.camera for v in placing])
         if target is None:
-            raise DatasetError(f"{source}: cannot place the scene: no masks, no points and the cameras look in parallel")
+            raise DatasetError(
+                f"{source}: cannot place the scene: no masks, no points and the cameras look in parallel"
+            )
         half = 0.5 * float(np.median([np.linalg.norm(v.camera.center - target) for v in placing]))
         box, box_from = np.stack([target - half, target + half]), "cameras"
     box = padded(box)
@@ -231,7 +251,17 @@ def make_capture(
     if not masked:
         log.warning("%s: %s", source, NO_MASK_NOTE)
     return SceneData(
-        name=name, views=views, near=near, far=far, bbox=box, symmetry_plane=None, source=source,
-        meta={**(meta or {}), "box_from": box_from, "masked": masked}, protocol=False, splits=splits,
-        up=cameras_up([v.camera for v in placing]), up_known=False, center=box.mean(0),
-    )  # fmt: skip
+        name=name,
+        views=views,
+        near=near,
+        far=far,
+        bbox=box,
+        symmetry_plane=None,
+        source=source,
+        meta={**(meta or {}), "box_from": box_from, "masked": masked},
+        protocol=False,
+        splits=splits,
+        up=cameras_up([v.camera for v in placing]),
+        up_known=False,
+        center=box.mean(0),
+    )

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from flipviz.data.capture import Intrinsics, capture_view, make_capture
 from flipviz.data.cameras import View
+from flipviz.data.capture import Intrinsics, capture_view, make_capture
 from flipviz.data.dataset import DatasetError, SceneData
 from flipviz.files import inside_folder
 

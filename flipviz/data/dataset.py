@@ -11,7 +11,6 @@ import numpy as np
 from flipviz.data.cameras import WORLD_UP, View
 from flipviz.errors import UserError
 
-
 MAX_COORDINATE = 1e6  # scene units: a camera further out is a damaged file (its arithmetic would overflow)
 
 
@@ -28,7 +27,9 @@ def read_transforms(path: Path) -> dict:
     except RecursionError:
         raise DatasetError(f"{path} is malformed: its JSON nests too deeply") from None
     if not isinstance(meta, dict):
-        raise DatasetError(f"{path} is malformed: the top level is a JSON {type(meta).__name__}, not an object with 'frames'")
+        raise DatasetError(
+            f"{path} is malformed: the top level is a JSON {type(meta).__name__}, not an object with 'frames'"
+        )
     return meta
 
 
@@ -60,7 +61,9 @@ def camera_to_world(matrix: object, k: int) -> np.ndarray:
     if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
         raise ValueError(f"frame {k}: transform_matrix is not a finite 4x4 matrix")
     if np.abs(c2w[:3, 3]).max() > MAX_COORDINATE:
-        raise ValueError(f"frame {k}: the camera is {np.abs(c2w[:3, 3]).max():.3g} units out, beyond {MAX_COORDINATE:g}")
+        raise ValueError(
+            f"frame {k}: the camera is {np.abs(c2w[:3, 3]).max():.3g} units out, beyond {MAX_COORDINATE:g}"
+        )
     R = c2w[:3, :3]
     with np.errstate(all="ignore"):  # huge entries overflow here: the check below refuses them
         orthonormal = np.allclose(R.T @ R, np.eye(3), atol=1e-3) and abs(np.linalg.det(R) - 1.0) <= 1e-3
@@ -101,7 +104,7 @@ class Plane:
         return np.stack([self.point + half * (a * u + b * v) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Plane":
+    def from_dict(cls, d: dict) -> Plane:
         return cls(np.asarray(d["point"]), np.asarray(d["normal"]))
 
 
@@ -127,7 +130,9 @@ class SceneData:
     splits: dict[str, list[int]] = field(default_factory=dict)  # a capture's named frame lists ("train", "test")
     up: np.ndarray = field(default_factory=lambda: WORLD_UP.copy())  # world up (captures: estimated from the cameras)
     up_known: bool = True  # False when `up` is only an estimate
-    center: np.ndarray | None = None  # the object's centre, look-at target of the mirrors (None: the paper's sphere fit)
+    center: np.ndarray | None = (
+        None  # the object's centre, look-at target of the mirrors (None: the paper's sphere fit)
+    )
 
     @property
     def resolution(self) -> tuple[int, int]:

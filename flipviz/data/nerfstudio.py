@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from flipviz.data.capture import Intrinsics, capture_view, make_capture
 from flipviz.data.cameras import View
+from flipviz.data.capture import Intrinsics, capture_view, make_capture
 from flipviz.data.dataset import DatasetError, Plane, SceneData, camera_to_world, check_resolution, read_transforms
 from flipviz.data.images import save_rgba_png, uncomposite
 from flipviz.files import inside_folder, write_json
@@ -37,7 +37,9 @@ def _intrinsics(d: dict, top: dict, model: str, where: str) -> Intrinsics:
     dist: tuple[float, ...] = ()
     if model == "OPENCV":
         dist = tuple(float(get(k, 0.0)) for k in OPENCV_KEYS) + ((float(get("k3")),) if get("k3") is not None else ())
-    return Intrinsics(w, h, float(fx), float(get("fl_y", fx)), float(get("cx", w / 2)), float(get("cy", h / 2)), dist).check(where)
+    return Intrinsics(
+        w, h, float(fx), float(get("fl_y", fx)), float(get("cx", w / 2)), float(get("cy", h / 2)), dist
+    ).check(where)
 
 
 def _ply_points(path: Path) -> np.ndarray:
@@ -72,9 +74,13 @@ def load_nerfstudio(path: str | os.PathLike, res: int | None = None) -> SceneDat
                 raise ValueError(f"frame {k} is a JSON {type(fr).__name__}, not an object")
             frame_model = str(fr.get("camera_model", model))
             if frame_model not in MODELS:  # a frame's own model, like the file's: never trained as a pinhole
-                raise ValueError(f"frame {k}: camera_model {frame_model} is not supported (flipviz reads {', '.join(MODELS)})")
+                raise ValueError(
+                    f"frame {k}: camera_model {frame_model} is not supported (flipviz reads {', '.join(MODELS)})"
+                )
             intr = _intrinsics(fr, meta, frame_model, f"{jpath} frame {k}")
-            entries.append((str(fr["file_path"]), camera_to_world(fr["transform_matrix"], k), intr, fr.get("mask_path")))
+            entries.append(
+                (str(fr["file_path"]), camera_to_world(fr["transform_matrix"], k), intr, fr.get("mask_path"))
+            )
         applied = meta.get("applied_transform")
         if applied is not None:
             A = np.asarray(applied, dtype=np.float64)
@@ -104,7 +110,9 @@ def load_nerfstudio(path: str | os.PathLike, res: int | None = None) -> SceneDat
             if unknown:
                 raise DatasetError(f"{jpath} is malformed: {split}_filenames lists {unknown[0]!r}, not a frame")
             splits[split] = sorted({by_file.get(str(n), by_file.get(str(n).lstrip("./"), -1)) for n in names})
-    points = _ply_points(inside_folder(root, str(meta["ply_file_path"]), jpath.name)) if meta.get("ply_file_path") else None
+    points = (
+        _ply_points(inside_folder(root, str(meta["ply_file_path"]), jpath.name)) if meta.get("ply_file_path") else None
+    )
     extra = {"format": "nerfstudio", "camera_model": model}
     if meta.get("applied_transform") is not None:
         extra["applied_transform"] = np.asarray(meta["applied_transform"], dtype=np.float64).tolist()
@@ -130,9 +138,16 @@ def write_nerfstudio(
         save_rgba_png(out / name, uncomposite(v.rgb, v.alpha))
         frames.append({"file_path": name, "transform_matrix": v.camera.c2w.tolist()})
     doc = {
-        "camera_model": "PINHOLE", "fl_x": cam0.focal, "fl_y": cam0.focal, "cx": cam0.width / 2, "cy": cam0.height / 2,
-        "w": cam0.width, "h": cam0.height, **(extra or {}), "frames": frames,
-    }  # fmt: skip
+        "camera_model": "PINHOLE",
+        "fl_x": cam0.focal,
+        "fl_y": cam0.focal,
+        "cx": cam0.width / 2,
+        "cy": cam0.height / 2,
+        "w": cam0.width,
+        "h": cam0.height,
+        **(extra or {}),
+        "frames": frames,
+    }
     for split, idx in (splits or {}).items():
         doc[f"{split}_filenames"] = [frames[i]["file_path"] for i in idx]
     write_json(out / "transforms.json", doc)

@@ -37,11 +37,11 @@ def render_mesh(
     tri = mesh.ray.intersects_first(origins.astype(np.float64), dirs.astype(np.float64))
     hit = tri >= 0
 
-    l = np.asarray(light_dir, dtype=np.float64)
-    l = l / np.linalg.norm(l)
+    light = np.asarray(light_dir, dtype=np.float64)
+    light = light / np.linalg.norm(light)
     n = np.asarray(mesh.face_normals)[tri[hit]]
     n = np.where((np.sum(n * dirs[hit], axis=1) > 0)[:, None], -n, n)  # face the camera
-    shade = ambient + (1.0 - ambient) * np.clip(n @ l, 0.0, None)
+    shade = ambient + (1.0 - ambient) * np.clip(n @ light, 0.0, None)
     albedo = np.asarray(mesh.visual.face_colors)[tri[hit], :3].astype(np.float64) / 255.0
 
     rgb = np.ones((H * s * W * s, 3))  # white background

@@ -24,14 +24,19 @@ class RayBank:
 
     @classmethod
     def from_images(
-        cls, cameras: list[Camera], images: list[np.ndarray], device: str | torch.device = "cpu",
+        cls,
+        cameras: list[Camera],
+        images: list[np.ndarray],
+        device: str | torch.device = "cpu",
         keep: list[np.ndarray | None] | None = None,
-    ) -> "RayBank":  # fmt: skip
+    ) -> RayBank:
         """Every pixel of every view; `keep[i]` (H, W) bool, when given, keeps only those of view i."""
         views, dirs, rgbs = [], [], []
         for i, (cam, img) in enumerate(zip(cameras, images, strict=True)):
             if img.shape[:2] != (cam.height, cam.width):
-                raise ValueError(f"view {cam.name!r}: image {img.shape[:2]} does not match camera {cam.height}x{cam.width}")
+                raise ValueError(
+                    f"view {cam.name!r}: image {img.shape[:2]} does not match camera {cam.height}x{cam.width}"
+                )
             k = keep[i].reshape(-1) if keep is not None and keep[i] is not None else slice(None)
             views.append(np.full(cam.width * cam.height, i, np.int64)[k])
             dirs.append(pixel_directions(cam.width, cam.height, cam.focal)[k])

@@ -9,9 +9,9 @@ paper stresses, a mirrored image of a symmetric object is still not a view of th
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
-from typing import Callable
+from functools import cache
 
 import numpy as np
 import trimesh
@@ -30,23 +30,23 @@ class Part:
     colors: np.ndarray  # (F, 3) uint8
 
     @classmethod
-    def of(cls, mesh: trimesh.Trimesh, color: Color) -> "Part":
+    def of(cls, mesh: trimesh.Trimesh, color: Color) -> Part:
         faces = np.asarray(mesh.faces, dtype=np.int64)
         return cls(np.asarray(mesh.vertices, dtype=np.float64), faces, np.tile(np.uint8(color), (len(faces), 1)))
 
-    def translated(self, t) -> "Part":
+    def translated(self, t) -> Part:
         return Part(self.vertices + np.asarray(t, dtype=np.float64), self.faces, self.colors)
 
-    def recolored(self, color: Color) -> "Part":
+    def recolored(self, color: Color) -> Part:
         return Part(self.vertices, self.faces, np.tile(np.uint8(color), (len(self.faces), 1)))
 
-    def mirrored(self, axis: int) -> "Part":
+    def mirrored(self, axis: int) -> Part:
         """Reflection through the plane {x_axis = 0}; face winding reversed to keep normals outward."""
         v = self.vertices.copy()
         v[:, axis] = -v[:, axis]  # negation is exact, so the reflection is bit-exact
         return Part(v, self.faces[:, ::-1].copy(), self.colors.copy())
 
-    def subdivided(self, times: int = 1) -> "Part":
+    def subdivided(self, times: int = 1) -> Part:
         """Split each triangle into four (midpoints are exact under reflection); colours follow."""
         v, f, c = self.vertices, self.faces, self.colors
         for _ in range(times):
@@ -54,7 +54,7 @@ class Part:
             c = np.repeat(c, 4, axis=0)  # trimesh puts the 4 children of face i at rows 4i..4i+3
         return Part(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64), c)
 
-    def paint(self, where: Callable[[np.ndarray], np.ndarray], color: Color) -> "Part":
+    def paint(self, where: Callable[[np.ndarray], np.ndarray], color: Color) -> Part:
         """Recolour the faces whose centroids satisfy `where(centroids) -> bool mask`."""
         c = self.colors.copy()
         c[where(self.vertices[self.faces].mean(axis=1))] = color
@@ -81,7 +81,9 @@ def centred_box(extents, center, color: Color, axis: int, subdivide: int = 0) ->
 
 
 def cylinder(p0, p1, radius: float, color: Color, sections: int = 32) -> Part:
-    return Part.of(trimesh.creation.cylinder(radius=radius, segment=np.array([p0, p1], dtype=float), sections=sections), color)
+    return Part.of(
+        trimesh.creation.cylinder(radius=radius, segment=np.array([p0, p1], dtype=float), sections=sections), color
+    )
 
 
 def sphere(center, radius: float, color: Color, subdivisions: int = 2) -> Part:
@@ -172,7 +174,9 @@ def mug() -> trimesh.Trimesh:
     parts = [
         body,
         Part.of(trimesh.creation.cylinder(radius=0.55, height=0.06, sections=64), WHITE).translated((0, 0, -0.67)),
-        Part.of(trimesh.creation.cylinder(radius=0.47, height=0.02, sections=64), (90, 50, 25)).translated((0, 0, 0.32)),
+        Part.of(trimesh.creation.cylinder(radius=0.47, height=0.02, sections=64), (90, 50, 25)).translated(
+            (0, 0, 0.32)
+        ),
         Part.of(handle, WHITE).translated((0.62, 0.0, -0.1)),
         cylinder((-0.12, 0.08, -0.2), (-0.48, 0.38, 0.95), 0.035, GREY, sections=12),  # spoon
         sphere((-0.48, 0.38, 0.95), 0.07, GREY, subdivisions=1),
@@ -216,10 +220,12 @@ class SceneSpec:
 
 
 BASE_SCENES: dict[str, SceneSpec] = {
-    "chair": SceneSpec(chair, Plane(np.zeros(3), np.array([1.0, 0.0, 0.0])),
-                       "armchair, geometry symmetric about x = 0, colours not"),
-    "truck": SceneSpec(truck, Plane(np.zeros(3), np.array([0.0, 1.0, 0.0])),
-                       "toy truck, geometry symmetric about y = 0, colours not"),
+    "chair": SceneSpec(
+        chair, Plane(np.zeros(3), np.array([1.0, 0.0, 0.0])), "armchair, geometry symmetric about x = 0, colours not"
+    ),
+    "truck": SceneSpec(
+        truck, Plane(np.zeros(3), np.array([0.0, 1.0, 0.0])), "toy truck, geometry symmetric about y = 0, colours not"
+    ),
     "mug": SceneSpec(mug, None, "mug with a handle and a leaning spoon, asymmetric"),
     "lamp": SceneSpec(lamp, None, "desk lamp with a bent arm and tilted shade, asymmetric"),
 }
@@ -245,8 +251,10 @@ def _turned(spec: SceneSpec) -> SceneSpec:
         mesh.apply_transform(T)
         return mesh
 
-    plane = None if spec.symmetry_plane is None else Plane(
-        T[:3, :3] @ spec.symmetry_plane.point + T[:3, 3], T[:3, :3] @ spec.symmetry_plane.normal
+    plane = (
+        None
+        if spec.symmetry_plane is None
+        else Plane(T[:3, :3] @ spec.symmetry_plane.point + T[:3, 3], T[:3, :3] @ spec.symmetry_plane.normal)
     )
     return SceneSpec(build, plane, f"{spec.description}; turned {TURN_YAW_DEG:g} deg and offset by {TURN_OFFSET}")
 
@@ -260,7 +268,7 @@ def _spec(name: str) -> SceneSpec:
     return SCENES[name]
 
 
-@lru_cache(maxsize=None)
+@cache
 def cached_mesh(name: str) -> trimesh.Trimesh:
     return _spec(name).builder()
 

@@ -41,7 +41,9 @@ def _indices(spec: str, available: list[int]) -> list[int]:
         out.update(range(int(lo), int(hi or lo) + 1))
     missing = sorted(out - set(available))
     if missing:
-        raise DatasetError(f"--inputs {spec!r}: no frame {missing[0]} (the scene has frames {available[0]}..{available[-1]})")
+        raise DatasetError(
+            f"--inputs {spec!r}: no frame {missing[0]} (the scene has frames {available[0]}..{available[-1]})"
+        )
     return sorted(out)
 
 
@@ -65,7 +67,9 @@ def select_split(scene: SceneData, spec: str) -> Split:
     """Inputs chosen by `spec`; tests: the capture's test frames, else all the others; no Upper views."""
     inputs = input_frames(scene, spec)
     if len(inputs) < 4:
-        raise DatasetError(f"--inputs {spec!r} chooses {len(inputs)} frame(s); a run needs at least 4 (the camera sphere)")
+        raise DatasetError(
+            f"--inputs {spec!r} chooses {len(inputs)} frame(s); a run needs at least 4 (the camera sphere)"
+        )
     chosen = set(inputs)
     tests = [i for i in scene.splits.get("test", sorted(scene.views)) if i not in chosen]
     return Split(0, [scene.views[i] for i in inputs], [scene.views[i] for i in tests], [])

@@ -29,6 +29,8 @@ def coverage(tests: list[Camera], mirrors: list[Camera], center: np.ndarray) -> 
     """mean_angle_deg, max_angle_deg, within_30 (share of test views), per_view_deg."""
     a = nearest_mirror_deg(tests, mirrors, np.asarray(center, dtype=np.float64))
     return {
-        "mean_angle_deg": float(a.mean()), "max_angle_deg": float(a.max()),
-        f"within_{NEAR_DEG:.0f}": float((a <= NEAR_DEG).mean()), "per_view_deg": a.tolist(),
-    }  # fmt: skip
+        "mean_angle_deg": float(a.mean()),
+        "max_angle_deg": float(a.max()),
+        f"within_{NEAR_DEG:.0f}": float((a <= NEAR_DEG).mean()),
+        "per_view_deg": a.tolist(),
+    }

@@ -10,8 +10,8 @@ rotation; rendering from it gives exactly the flipped image (see `flipviz.data.c
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -73,7 +73,10 @@ def _cameras(items: Sequence[Camera | View]) -> list[Camera]:
 
 # Paper Sec. IV-A: "the symmetric plane that intersects the center of the sphere".
 def mirror_plane(
-    preset: str, input_cameras: Sequence[Camera | View], sphere: Sphere, scene_plane: Plane | None = None,
+    preset: str,
+    input_cameras: Sequence[Camera | View],
+    sphere: Sphere,
+    scene_plane: Plane | None = None,
     up: np.ndarray = WORLD_UP,
 ) -> Plane:
     """The mirror plane for a preset name or a user string 'px,py,pz;nx,ny,nz'.
@@ -137,7 +140,9 @@ def mirror_cameras_for_plane(
     symmetric about that plane, on any trajectory).
     """
     if pose == "reflect":
-        return [(m := exact_reflected_camera(c, plane)).with_pose(m.c2w, name=f"{c.name}_flip") for c in _cameras(inputs)]
+        return [
+            (m := exact_reflected_camera(c, plane)).with_pose(m.c2w, name=f"{c.name}_flip") for c in _cameras(inputs)
+        ]
     return [initial_mirrored_camera(c, plane, sphere, up) for c in _cameras(inputs)]
 
 
@@ -175,8 +180,13 @@ class MirrorSet:
 
 
 def make_mirror_set(
-    inputs: Sequence[View], plane_preset: str | Plane, scene_plane: Plane | None = None,
-    center: np.ndarray | None = None, up: np.ndarray = WORLD_UP, *, pose: str,
+    inputs: Sequence[View],
+    plane_preset: str | Plane,
+    scene_plane: Plane | None = None,
+    center: np.ndarray | None = None,
+    up: np.ndarray = WORLD_UP,
+    *,
+    pose: str,
 ) -> MirrorSet:
     """Paper Sec. IV-A end to end: sphere through the input centres, plane, flipped views, poses.
 
@@ -187,7 +197,9 @@ def make_mirror_set(
     if len(inputs) == 0:
         raise DatasetError("no input views to mirror")
     sphere = camera_sphere(inputs, center)
-    plane = plane_preset if isinstance(plane_preset, Plane) else mirror_plane(plane_preset, inputs, sphere, scene_plane, up)
+    plane = (
+        plane_preset if isinstance(plane_preset, Plane) else mirror_plane(plane_preset, inputs, sphere, scene_plane, up)
+    )
     views = []
     for v, cam in zip(inputs, mirror_cameras_for_plane(inputs, plane, sphere, up, pose)):
         alpha = None if v.alpha is None else flip_image(v.alpha)

@@ -19,8 +19,8 @@ viewing directions the circle's centre is returned (documented fallback).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 

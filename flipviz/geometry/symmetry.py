@@ -86,23 +86,36 @@ class PlaneEstimate:
     def summary(self) -> str:
         n, p = self.plane.normal, self.plane.point
         verdict = "confident" if self.confident else "NOT confident: the object may not be mirror-symmetric"
-        return (f"estimated mirror plane: normal ({n[0]:.3f}, {n[1]:.3f}, {n[2]:.3f}) through "
-                f"({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}), confidence {self.confidence:.2f} ({verdict})")  # fmt: skip
+        return (
+            f"estimated mirror plane: normal ({n[0]:.3f}, {n[1]:.3f}, {n[2]:.3f}) through "
+            f"({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}), confidence {self.confidence:.2f} ({verdict})"
+        )
 
     def to_dict(self) -> dict:
         return {
-            "plane": self.plane.to_dict(), "confidence": self.confidence, "confident": self.confident,
-            "agreement": self.agreement, "evidence": self.evidence, "seconds": self.seconds,
-            "azimuth_deg": self.azimuth_deg, "azimuth_score": self.azimuth_score, "meta": self.meta,
-        }  # fmt: skip
+            "plane": self.plane.to_dict(),
+            "confidence": self.confidence,
+            "confident": self.confident,
+            "agreement": self.agreement,
+            "evidence": self.evidence,
+            "seconds": self.seconds,
+            "azimuth_deg": self.azimuth_deg,
+            "azimuth_score": self.azimuth_score,
+            "meta": self.meta,
+        }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "PlaneEstimate":
+    def from_dict(cls, d: dict) -> PlaneEstimate:
         return cls(
-            Plane.from_dict(d["plane"]), float(d["confidence"]), float(d["agreement"]), float(d["evidence"]),
-            [float(a) for a in d["azimuth_deg"]], [float(s) for s in d["azimuth_score"]], float(d["seconds"]),
+            Plane.from_dict(d["plane"]),
+            float(d["confidence"]),
+            float(d["agreement"]),
+            float(d["evidence"]),
+            [float(a) for a in d["azimuth_deg"]],
+            [float(s) for s in d["azimuth_score"]],
+            float(d["seconds"]),
             dict(d.get("meta", {})),
-        )  # fmt: skip
+        )
 
 
 def plane_error(plane: Plane, truth: Plane) -> tuple[float, float]:
@@ -173,7 +186,9 @@ def search_plane(vol: SymmetryVolume, up: np.ndarray, up_known: bool = True, see
     normals = vertical if up_known else np.concatenate([vertical, _hemisphere(N_HEMISPHERE)])
     shifts = np.linspace(-OFFSET_RANGE, OFFSET_RANGE, N_OFFSETS) * extent
     N = torch.as_tensor(np.repeat(normals, len(shifts), 0), dtype=torch.float32)
-    D = torch.as_tensor((np.repeat(normals @ centroid, len(shifts)) + np.tile(shifts, len(normals))), dtype=torch.float32)
+    D = torch.as_tensor(
+        (np.repeat(normals @ centroid, len(shifts)) + np.tile(shifts, len(normals))), dtype=torch.float32
+    )
     _, _, score = scorer(N, D)
     per_normal = score.view(len(normals), len(shifts))
 
@@ -187,7 +202,12 @@ def search_plane(vol: SymmetryVolume, up: np.ndarray, up_known: bool = True, see
         n = normals[k // len(shifts)]
         x0 = np.array([np.arccos(np.clip(n[2], -1, 1)), np.arctan2(n[1], n[0]), float(D[k])])
         simplex = np.vstack([x0, x0 + np.diag([0.05, 0.05, 0.02 * extent])])  # 3 degrees, 2 % of the extent
-        res = minimize(lambda x: -one(x)[2], x0, method="Nelder-Mead", options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-5, "maxfev": 200})
+        res = minimize(
+            lambda x: -one(x)[2],
+            x0,
+            method="Nelder-Mead",
+            options={"initial_simplex": simplex, "xatol": 1e-4, "fatol": 1e-5, "maxfev": 200},
+        )
         if res.fun < best:
             best, best_x = float(res.fun), res.x
     n = _normal(best_x[0], best_x[1])
@@ -197,6 +217,12 @@ def search_plane(vol: SymmetryVolume, up: np.ndarray, up_known: bool = True, see
     confidence = float(np.clip((s - s_med) / max(1.0 - s_med, 1e-6), 0.0, 1.0))
     plane = Plane(centroid - (centroid @ n - best_x[2]) * n, n)  # its point nearest the surface centroid
     return PlaneEstimate(
-        plane, confidence, a, e, az.tolist(), profile.tolist(), time.perf_counter() - t0,
+        plane,
+        confidence,
+        a,
+        e,
+        az.tolist(),
+        profile.tolist(),
+        time.perf_counter() - t0,
         {"score": s, "median_profile_score": s_med, "surface_points": int(len(scorer.S))},
-    )  # fmt: skip
+    )

@@ -14,7 +14,9 @@ class BoxField(nn.Module):
     of Sec. IV-C, on the colour branch (`beta_from` colour: position and view direction, flipviz) or
     on the position features alone (position: the official code's, from the density trunk)."""
 
-    def __init__(self, bbox: np.ndarray, with_beta: bool, device: torch.device | str, beta_from: str = "colour") -> None:
+    def __init__(
+        self, bbox: np.ndarray, with_beta: bool, device: torch.device | str, beta_from: str = "colour"
+    ) -> None:
         super().__init__()
         if beta_from not in ("colour", "position"):
             raise ValueError(f"beta_from must be 'colour' or 'position', got {beta_from!r}")

@@ -9,7 +9,7 @@ model tests): random rays from all views, MSE + the field's regulariser, and, wi
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch

@@ -29,8 +29,8 @@ What makes it fast on a CPU (measured on the 2-core development machine):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import torch
@@ -84,7 +84,7 @@ class GridConfig:
 
     def build(
         self, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str, beta_from: str = "colour"
-    ) -> "GridField":
+    ) -> GridField:
         return GridField(self, bbox, with_beta, beta_init, device, beta_from)
 
 
@@ -96,9 +96,14 @@ def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
 
 class GridField(BoxField):
     def __init__(
-        self, cfg: GridConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu",
+        self,
+        cfg: GridConfig,
+        bbox: np.ndarray,
+        with_beta: bool,
+        beta_init: float,
+        device: torch.device | str = "cpu",
         beta_from: str = "colour",
-    ):  # fmt: skip
+    ):
         super().__init__(bbox, with_beta, device, beta_from)
         self.cfg = cfg
         ext = np.asarray(bbox[1], dtype=np.float64) - np.asarray(bbox[0], dtype=np.float64)
@@ -328,4 +333,3 @@ class GridField(BoxField):
     def lattice_shape(self) -> tuple[int, int, int]:
         """(Z, Y, X) of the lattice a point cloud of this field is sampled on: its own voxels."""
         return self.resolution
-

@@ -15,8 +15,8 @@ p = training progress in [0, 1], so that pose refinement first sees a smooth fie
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import torch
@@ -46,15 +46,20 @@ class NerfConfig:
 
     def build(
         self, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str, beta_from: str = "colour"
-    ) -> "NerfField":
+    ) -> NerfField:
         return NerfField(self, bbox, with_beta, beta_init, device, beta_from)
 
 
 class NerfField(BoxField):
     def __init__(
-        self, cfg: NerfConfig, bbox: np.ndarray, with_beta: bool, beta_init: float, device: torch.device | str = "cpu",
+        self,
+        cfg: NerfConfig,
+        bbox: np.ndarray,
+        with_beta: bool,
+        beta_init: float,
+        device: torch.device | str = "cpu",
         beta_from: str = "colour",
-    ):  # fmt: skip
+    ):
         super().__init__(bbox, with_beta, device, beta_from)
         self.cfg = cfg
         self.register_buffer("progress", torch.ones((), device=device))  # for BARF's c2f schedule
@@ -125,4 +130,6 @@ class NerfField(BoxField):
         return self.sigma_head.weight.new_zeros(())
 
     def make_optimizer(self) -> torch.optim.Optimizer:
-        return adam([{"params": list(self.parameters()), "lr": self.cfg.lr, "name": "mlp"}], eps=1e-8, betas=(0.9, 0.999))
+        return adam(
+            [{"params": list(self.parameters()), "lr": self.cfg.lr, "name": "mlp"}], eps=1e-8, betas=(0.9, 0.999)
+        )

@@ -10,10 +10,10 @@ so xi_i is a small motion expressed in camera i's own frame. BARF composes on th
 instead (its world-to-camera pose is applied after the correction, i.e. c2w = Exp(xi)^-1 @ c2w_init).
 flipviz uses the camera side because a mirrored camera sits 4 units from the world origin: a
 world-side rotation swings the camera around the origin, coupling rotation and translation, while
-a camera-side one turns it in place, so the 6 components of xi_i are independent. Rays are generated from the refined c2w with
-`flipviz.data.cameras.rays_from_c2w`, so the photometric loss is differentiable in xi_i. Only
-cameras with refine[i] = True move (in the paper: the mirrored cameras); the others keep exactly
-their initial pose.
+a camera-side one turns it in place, so the 6 components of xi_i are independent. Rays are generated
+from the refined c2w with `flipviz.data.cameras.rays_from_c2w`, so the photometric loss is
+differentiable in xi_i. Only cameras with refine[i] = True move (in the paper: the mirrored
+cameras); the others keep exactly their initial pose.
 
 Coarse-to-fine: BARF anneals the positional-encoding bands of its MLP over [0.1, 0.5] of training
 so that early pose gradients come from a smooth field. The NeRF field does the same

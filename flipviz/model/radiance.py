@@ -93,10 +93,19 @@ class RadianceModel(nn.Module):
         the entropy term of the next `regulariser()` call.
         """
         out = render_rays(
-            self.field, origins, dirs, bbox=self.bbox, near=self.near, far=self.far, n_samples=self.cfg.n_samples,
-            training=training, beta_min=self.cfg.beta_min, beta2_mode=self.cfg.beta2_mode,
-            background=self.cfg.background, background_rgb=self.background_rgb(),
-        )  # fmt: skip
+            self.field,
+            origins,
+            dirs,
+            bbox=self.bbox,
+            near=self.near,
+            far=self.far,
+            n_samples=self.cfg.n_samples,
+            training=training,
+            beta_min=self.cfg.beta_min,
+            beta2_mode=self.cfg.beta2_mode,
+            background=self.cfg.background,
+            background_rgb=self.background_rgb(),
+        )
         if training and self.cfg.w_entropy > 0 and torch.is_grad_enabled():
             self._pending_opacity = self._pending_opacity[-15:] + [out["opacity"]]  # bounded
         return out
@@ -118,9 +127,13 @@ class RadianceModel(nn.Module):
 
     @torch.no_grad()
     def point_cloud(
-        self, min_alpha: float = 0.05, max_points: int = 150_000, faint_alpha: float = 0.005, max_faint: int = 30_000,
+        self,
+        min_alpha: float = 0.05,
+        max_points: int = 150_000,
+        faint_alpha: float = 0.005,
+        max_faint: int = 30_000,
         chunk: int = 65536,
-    ) -> dict[str, np.ndarray]:  # fmt: skip
+    ) -> dict[str, np.ndarray]:
         """The field as coloured points, for a live 3D preview.
 
         Points are lattice cells (the grid's own voxels; 48^3 for the MLP) with their opacity over

@@ -37,7 +37,8 @@ colour only where the weight w_j is large enough; the NeRF MLP computes everythi
 
 from __future__ import annotations
 
-from typing import Callable, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 import torch
 import torch.nn.functional as F

@@ -1,11 +1,11 @@
 """What a run leaves in its folder besides the checkpoint: metrics, test renders, refined poses.
 
-    <run folder>/metrics.json            PSNR / SSIM / LPIPS on the unobserved views (evaluate.py)
-    <run folder>/test_renders/<view>.png and <view>_gt.png
-    <run folder>/transforms.json         the refined mirrored poses, Blender format, with
-    <run folder>/mirrored/<view>.png     their flipped images
-    <run folder>/plane.json              --mirror-plane auto: the estimated plane, its confidence
-                                         and scores (read back when the run is resumed)
+<run folder>/metrics.json            PSNR / SSIM / LPIPS on the unobserved views (evaluate.py)
+<run folder>/test_renders/<view>.png and <view>_gt.png
+<run folder>/transforms.json         the refined mirrored poses, Blender format, with
+<run folder>/mirrored/<view>.png     their flipped images
+<run folder>/plane.json              --mirror-plane auto: the estimated plane, its confidence
+                                     and scores (read back when the run is resumed)
 """
 
 from __future__ import annotations
@@ -36,12 +36,16 @@ def refuse_to_overwrite(run_dir: Path, cfg: TrainConfig) -> None:
     """One UserError line instead of a silent overwrite: a fresh run (no --resume) over an earlier
     run without --overwrite, or a --rrd in the folder of a run that another process trains."""
     if cfg.resume is None and not cfg.overwrite and holds_run(run_dir):
-        raise UserError(f"{run_dir} holds an earlier run; continue it with --resume {run_dir}, "
-                        "replace it with --overwrite, or choose another --out")  # fmt: skip
+        raise UserError(
+            f"{run_dir} holds an earlier run; continue it with --resume {run_dir}, "
+            "replace it with --overwrite, or choose another --out"
+        )
     rrd = None if cfg.no_rrd or cfg.rrd is None else Path(cfg.rrd)
     if rrd is not None and rrd.parent.resolve() != run_dir.resolve() and (holder := FolderLock.holder(rrd.parent)):
-        raise UserError(f"the recording {rrd} would go into the run folder {rrd.parent}, which {holder} is training; "
-                        "choose another --rrd")  # fmt: skip
+        raise UserError(
+            f"the recording {rrd} would go into the run folder {rrd.parent}, which {holder} is training; "
+            "choose another --rrd"
+        )
 
 
 def remove_run(run_dir: Path) -> None:
@@ -78,7 +82,9 @@ def write_metrics(run_dir: Path, metrics: dict) -> Path:
     return write_json(run_dir / METRICS_FILE, metrics)
 
 
-def write_transforms(run_dir: Path, cameras: list[Camera], images: list[np.ndarray], image_dir: str = "mirrored") -> Path:
+def write_transforms(
+    run_dir: Path, cameras: list[Camera], images: list[np.ndarray], image_dir: str = "mirrored"
+) -> Path:
     """Blender-format transforms.json of `cameras` (the refined mirrored poses) + their PNG images."""
     frames = []
     for i, (cam, img) in enumerate(zip(cameras, images, strict=True)):

@@ -45,7 +45,9 @@ def save_checkpoint(path: Path, state: dict) -> Path:
             torch.save(state, tmp)
         except RuntimeError as e:  # torch's zip writer reports a failed write (a full disk) so, not as OSError
             free = free_bytes(tmp.parent)
-            raise OSError(errno.EIO, f"the write failed, {free / 1e6:.0f} MB free on that disk ({str(e).splitlines()[0][:80]})") from None
+            raise OSError(
+                errno.EIO, f"the write failed, {free / 1e6:.0f} MB free on that disk ({str(e).splitlines()[0][:80]})"
+            ) from None
     return Path(path)
 
 
@@ -76,8 +78,10 @@ def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") 
         state = torch.load(p, map_location=map_location, weights_only=True)  # never runs code from the file
     except pickle.UnpicklingError as e:
         if "GLOBAL" in str(e):  # the file names a Python object (a function, a class) to build
-            raise UserError(f"cannot open {p}: it holds Python objects beyond tensors and plain data, and flipviz "
-                            "never loads those (loading could run code); it was not written by flipviz") from None  # fmt: skip
+            raise UserError(
+                f"cannot open {p}: it holds Python objects beyond tensors and plain data, and flipviz "
+                "never loads those (loading could run code); it was not written by flipviz"
+            ) from None
         raise UserError(f"cannot open {p}: not a readable checkpoint (UnpicklingError)") from None
     except Exception as e:  # truncated, garbage, another format: torch and pickle raise many kinds
         raise UserError(f"cannot open {p}: not a readable checkpoint ({type(e).__name__})") from None

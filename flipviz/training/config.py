@@ -28,7 +28,9 @@ def check_device(device: str) -> None:
     if dev.type != "cuda":
         raise UserError(f"--device {device!r} is not supported; use cpu, cuda or cuda:N")
     if not torch.cuda.is_available():
-        raise UserError(f"--device {device!r}: no CUDA device is available here (torch {torch.__version__}); use --device cpu")
+        raise UserError(
+            f"--device {device!r}: no CUDA device is available here (torch {torch.__version__}); use --device cpu"
+        )
     if dev.index is not None and dev.index >= torch.cuda.device_count():
         raise UserError(f"--device {device!r}: only {torch.cuda.device_count()} CUDA device(s) here")
 
@@ -63,7 +65,14 @@ def type_words(hint: object) -> str:
         return " or ".join(type_words(a) for a in args)
     if origin is tuple:
         return f"a list of {type_words(args[0]).removeprefix('a ')}s"
-    words = {type(None): "none", float: "a number", int: "a whole number", bool: "true or false", str: "text", Path: "a path"}
+    words = {
+        type(None): "none",
+        float: "a number",
+        int: "a whole number",
+        bool: "true or false",
+        str: "text",
+        Path: "a path",
+    }
     return words.get(hint, getattr(hint, "__name__", str(hint)))
 
 
@@ -73,12 +82,23 @@ def type_words(hint: object) -> str:
 # --preset authors: where the official code (minjae-lulu/Just-Flip) differs from the paper's text and
 # from flipviz's defaults, its choice (docs/AUTHORS_SETTING.md gives each with its file and line).
 AUTHORS_PRESET: dict[str, object] = {
-    "background": "last", "density_on": "all", "nll_channels": "mean", "beta_from": "position", "refine": "all",
-    "mirror_pose": "lookat", "refine_plane": False, "disagreement_limit": float("inf"),
-}  # fmt: skip
+    "background": "last",
+    "density_on": "all",
+    "nll_channels": "mean",
+    "beta_from": "position",
+    "refine": "all",
+    "mirror_pose": "lookat",
+    "refine_plane": False,
+    "disagreement_limit": float("inf"),
+}
 PAPER_PRESET: dict[str, object] = {
-    "field": "nerf", "n_samples": 128, "steps": 50_000, "uncertainty_start": 0.2, "batch_rays": 1024, **AUTHORS_PRESET,
-}  # fmt: skip
+    "field": "nerf",
+    "n_samples": 128,
+    "steps": 50_000,
+    "uncertainty_start": 0.2,
+    "batch_rays": 1024,
+    **AUTHORS_PRESET,
+}
 PAPER_LR_DECAY = 0.2  # 5e-4 -> 1e-4 (BARF's options/nerf_blender.yaml: lr 5e-4, lr_end 1e-4)
 
 
@@ -228,19 +248,32 @@ class TrainConfig:
     wins over the preset's, whatever its value (docs/AUTHORS_SETTING.md). In code, build a preset's
     config with `preset_config(name, ...)`: this field alone only names it."""
 
-    def validate(self) -> "TrainConfig":
+    def validate(self) -> TrainConfig:
         """Every setting of its type and within its stated limits, else one `UserError` line; train,
         app and bench call it, and so does every run read back from a checkpoint."""
         hints = typing.get_type_hints(TrainConfig)
         for f in fields(TrainConfig):  # the app's config adds its own fields, which tyro checked
             if not fits(getattr(self, f.name), hints[f.name]):
-                raise UserError(f"--{f.name.replace('_', '-')} must be {type_words(hints[f.name])}, got {getattr(self, f.name)!r}")
+                raise UserError(
+                    f"--{f.name.replace('_', '-')} must be {type_words(hints[f.name])}, got {getattr(self, f.name)!r}"
+                )
         bounds = {  # name: (lowest, highest)
-            "config": (1, 8), "res": (8, 1024), "steps": (1, 10_000_000), "batch_rays": (1, 1_000_000),
-            "n_samples": (2, 1024), "log_every": (1, 10_000_000), "images_every": (0, 10_000_000),
-            "checkpoint_every": (0, 10_000_000), "uncertainty_start": (0.0, 1.0), "density_weight": (0.0, 1e6),
-            "plane_lr": (0.0, 1.0), "plane_start": (0.0, 1.0), "estimate_after": (0, 10_000_000), "seed": (0, 2**63 - 1), "disagreement_limit": (1.0, float("inf")),
-        }  # fmt: skip
+            "config": (1, 8),
+            "res": (8, 1024),
+            "steps": (1, 10_000_000),
+            "batch_rays": (1, 1_000_000),
+            "n_samples": (2, 1024),
+            "log_every": (1, 10_000_000),
+            "images_every": (0, 10_000_000),
+            "checkpoint_every": (0, 10_000_000),
+            "uncertainty_start": (0.0, 1.0),
+            "density_weight": (0.0, 1e6),
+            "plane_lr": (0.0, 1.0),
+            "plane_start": (0.0, 1.0),
+            "estimate_after": (0, 10_000_000),
+            "seed": (0, 2**63 - 1),
+            "disagreement_limit": (1.0, float("inf")),
+        }
         for name, (lo, hi) in bounds.items():
             if not lo <= getattr(self, name) <= hi:  # of its type already (above)
                 raise UserError(f"--{name.replace('_', '-')} must be in {lo}..{hi}, got {getattr(self, name)!r}")
@@ -250,7 +283,8 @@ class TrainConfig:
             raise UserError(f"--plane-file {self.plane_file} is not a file (it is read, or written after the estimate)")
         if self.grid_res is not None and (not self.grid_res or any(not 8 <= r <= 512 for r in self.grid_res)):
             raise UserError(f"--grid-res needs resolutions in 8..512, got {self.grid_res!r}")
-        from flipviz.geometry.mirror import PRESETS as PLANE_PRESETS, parse_plane
+        from flipviz.geometry.mirror import PRESETS as PLANE_PRESETS
+        from flipviz.geometry.mirror import parse_plane
 
         if self.mirror_plane.strip().lower() not in ("auto", *PLANE_PRESETS):
             parse_plane(self.mirror_plane)  # one line when it is neither a preset nor 'px,py,pz;nx,ny,nz'

@@ -59,8 +59,14 @@ def depth_abs_error(depth: np.ndarray, true_depth: np.ndarray, alpha: np.ndarray
     return float(np.mean(np.abs(depth[m] - true_depth[m]))) if m.any() else float("nan")
 
 
-def structure_scores(pred: np.ndarray, gt: np.ndarray, opacity: np.ndarray, alpha: np.ndarray | None,
-                     depth: np.ndarray | None = None, true_depth: np.ndarray | None = None) -> dict:  # fmt: skip
+def structure_scores(
+    pred: np.ndarray,
+    gt: np.ndarray,
+    opacity: np.ndarray,
+    alpha: np.ndarray | None,
+    depth: np.ndarray | None = None,
+    true_depth: np.ndarray | None = None,
+) -> dict:
     """iou, psnr_object (and depth_abs where the true depth is known) of one view; {} without alpha."""
     if alpha is None:
         return {}
@@ -112,20 +118,28 @@ class LPIPSAlex(nn.Module):
         super().__init__()
         # torchvision.models.alexnet().features, index for index (so its state_dict loads as is)
         self.features = nn.Sequential(
-            nn.Conv2d(3, 64, 11, 4, 2), nn.ReLU(inplace=False), nn.MaxPool2d(3, 2),
-            nn.Conv2d(64, 192, 5, padding=2), nn.ReLU(inplace=False), nn.MaxPool2d(3, 2),
-            nn.Conv2d(192, 384, 3, padding=1), nn.ReLU(inplace=False),
-            nn.Conv2d(384, 256, 3, padding=1), nn.ReLU(inplace=False),
-            nn.Conv2d(256, 256, 3, padding=1), nn.ReLU(inplace=False), nn.MaxPool2d(3, 2),
-        )  # fmt: skip
+            nn.Conv2d(3, 64, 11, 4, 2),
+            nn.ReLU(inplace=False),
+            nn.MaxPool2d(3, 2),
+            nn.Conv2d(64, 192, 5, padding=2),
+            nn.ReLU(inplace=False),
+            nn.MaxPool2d(3, 2),
+            nn.Conv2d(192, 384, 3, padding=1),
+            nn.ReLU(inplace=False),
+            nn.Conv2d(384, 256, 3, padding=1),
+            nn.ReLU(inplace=False),
+            nn.Conv2d(256, 256, 3, padding=1),
+            nn.ReLU(inplace=False),
+            nn.MaxPool2d(3, 2),
+        )
         self.slices = ((0, 2), (2, 5), (5, 8), (8, 10), (10, 12))  # outputs relu1..relu5
         self.lins = nn.ModuleList(nn.Conv2d(c, 1, 1, bias=False) for c in self.CHANNELS)
         self.register_buffer("shift", torch.tensor([-0.030, -0.088, -0.188]).view(1, 3, 1, 1))
         self.register_buffer("scale", torch.tensor([0.458, 0.448, 0.450]).view(1, 3, 1, 1))
 
-    def load(self, alex_path: Path, lin_path: Path) -> "LPIPSAlex":
+    def load(self, alex_path: Path, lin_path: Path) -> LPIPSAlex:
         sd = torch.load(alex_path, map_location="cpu", weights_only=True)
-        self.features.load_state_dict({k[len("features."):]: v for k, v in sd.items() if k.startswith("features.")})
+        self.features.load_state_dict({k[len("features.") :]: v for k, v in sd.items() if k.startswith("features.")})
         lin = torch.load(lin_path, map_location="cpu", weights_only=True)
         for i, conv in enumerate(self.lins):  # LPIPS keys: lin{i}.model.1.weight (after a Dropout)
             conv.weight.data.copy_(lin[f"lin{i}.model.1.weight"])
@@ -179,11 +193,15 @@ def blank_scores(gts: list[np.ndarray]) -> dict[str, float]:
     """PSNR and SSIM of an all-white image against each view, averaged: the score of a render that shows
     nothing at all. A table's scores mean something only well above it (lego: about 10 dB)."""
     white = [np.ones_like(g) for g in gts]
-    return {"blank_psnr": float(np.mean([image_psnr(w, g) for w, g in zip(white, gts)])),
-            "blank_ssim": float(np.mean([ssim(w, g) for w, g in zip(white, gts)]))}  # fmt: skip
+    return {
+        "blank_psnr": float(np.mean([image_psnr(w, g) for w, g in zip(white, gts)])),
+        "blank_ssim": float(np.mean([ssim(w, g) for w, g in zip(white, gts)])),
+    }
 
 
-def score_views(preds: list[np.ndarray], gts: list[np.ndarray], names: list[str], structure: list[dict] | None = None) -> dict:
+def score_views(
+    preds: list[np.ndarray], gts: list[np.ndarray], names: list[str], structure: list[dict] | None = None
+) -> dict:
     """Mean and per-view PSNR / SSIM / LPIPS, and the structure scores given per view (`structure_scores`).
     LPIPS is "unavailable" (+ lpips_reason) without weights."""
     net, reason = load_lpips()

@@ -71,8 +71,15 @@ def mirrored_train_views(spec: MethodSpec, mirrors: MirrorSet, bbox: np.ndarray)
     without a mask (a capture's background) keeps only the rays through the scene box `bbox`: a
     flipped background is not what the mirrored camera would see."""
     return [
-        TrainView("mirror", v.camera, v.rgb, spec.ba, spec.uncertain_mirrors, v.meta.get("source", ""),
-                  None if v.alpha is not None else rays_through_box(v.camera, bbox))  # fmt: skip
+        TrainView(
+            "mirror",
+            v.camera,
+            v.rgb,
+            spec.ba,
+            spec.uncertain_mirrors,
+            v.meta.get("source", ""),
+            None if v.alpha is not None else rays_through_box(v.camera, bbox),
+        )
         for v in mirrors.views
     ]
 
@@ -193,9 +200,14 @@ class Flip:
     schedules (the NLL's warm-up, BA, the plane) count their fractions over the steps from it."""
 
     def __init__(
-        self, cfg: TrainConfig, ts: TrainingSet, plane: Plane | None, beta_min: float, device: torch.device | str,
+        self,
+        cfg: TrainConfig,
+        ts: TrainingSet,
+        plane: Plane | None,
+        beta_min: float,
+        device: torch.device | str,
         start: int = 0,
-    ) -> None:  # fmt: skip
+    ) -> None:
         self.ts, self.steps, self.start = ts, cfg.steps, start
         span = max(1, cfg.steps - start)  # the steps the mirrors train
         self.refiner = pose_refiner(ts, span, device)
@@ -206,7 +218,9 @@ class Flip:
         refine_plane = cfg.refine_plane and plane is not None and bool(ts.mirror_ids)
         self.plane = MirrorPlane(plane, device) if refine_plane else None
         self.plane_start = start + int(cfg.plane_start * span)
-        ba_start = cfg.ba_start if cfg.ba_start is not None else (BA_START_WITH_PLANE if self.plane is not None else 0.0)
+        ba_start = (
+            cfg.ba_start if cfg.ba_start is not None else (BA_START_WITH_PLANE if self.plane is not None else 0.0)
+        )
         self.ba_start = start + int(ba_start * span)  # a refined plane moves all the mirrors first
         self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
         self.opt_plane = None
@@ -252,9 +266,13 @@ class Flip:
         if self.agreement is not None and self.dropped_at is None and step >= self.gate_start:
             if self.agreement.ratio > self.disagreement_limit:
                 self.dropped_at = step + 1
-                log.warning("step %d: the mirrored views disagree with the inputs (disagreement %.2f > %.2f, "
-                            "training/flip.py: Agreement); training without them", step + 1, self.agreement.ratio,
-                            self.disagreement_limit)  # fmt: skip
+                log.warning(
+                    "step %d: the mirrored views disagree with the inputs (disagreement %.2f > %.2f, "
+                    "training/flip.py: Agreement); training without them",
+                    step + 1,
+                    self.agreement.ratio,
+                    self.disagreement_limit,
+                )
                 return True
         if self.dropped_at is not None:
             return False  # nothing mirrored is trained: the poses and the plane stay where they were
@@ -271,8 +289,12 @@ class Flip:
         agree = {}
         if self.agreement is not None:
             a = self.agreement
-            agree = {"mse_mirror": a.mirror / 3.0, "mse_input": a.input / 3.0, "disagreement": a.ratio,
-                     "mirrors_trained": float(self.dropped_at is None)}  # fmt: skip
+            agree = {
+                "mse_mirror": a.mirror / 3.0,
+                "mse_input": a.input / 3.0,
+                "disagreement": a.ratio,
+                "mirrors_trained": float(self.dropped_at is None),
+            }
         return {**self.lrs(), **agree}
 
     def lrs(self) -> dict[str, float]:
@@ -292,7 +314,9 @@ class Flip:
             "opt_pose": self.opt_pose.state_dict() if self.opt_pose is not None else None,
             "plane": self.plane.state_dict() if self.plane is not None else None,
             "opt_plane": self.opt_plane.state_dict() if self.opt_plane is not None else None,
-            "agreement": {"mirror": a.mirror, "input": a.input, "dropped_at": self.dropped_at} if (a := self.agreement) else None,
+            "agreement": {"mirror": a.mirror, "input": a.input, "dropped_at": self.dropped_at}
+            if (a := self.agreement)
+            else None,
         }
 
     def load_state_dict(self, state: dict) -> None:

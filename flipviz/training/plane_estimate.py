@@ -80,7 +80,14 @@ def estimate_plane(inputs: list[View], scene: SceneData, device: str = "cpu", se
     with torch.random.fork_rng(devices=[] if str(device) == "cpu" else None):
         torch.manual_seed(seed)
         field = GridConfig(grid_res=FIT_GRID, upsample_at=(0.3,))
-        model = RadianceModel(ModelConfig(field=field, n_samples=FIT_SAMPLES), scene.bbox, scene.near, scene.far, with_beta=False, device=device)
+        model = RadianceModel(
+            ModelConfig(field=field, n_samples=FIT_SAMPLES),
+            scene.bbox,
+            scene.near,
+            scene.far,
+            with_beta=False,
+            device=device,
+        )
         fit(model, inputs, FIT_STEPS, batch_rays=FIT_BATCH, seed=seed)
         t_fit = time.perf_counter() - t0
         est = estimate_from_field(model, inputs, scene, seed)
@@ -89,7 +96,9 @@ def estimate_plane(inputs: list[View], scene: SceneData, device: str = "cpu", se
     return est
 
 
-def estimate_from_field(model: RadianceModel, inputs: list[View], scene: SceneData, seed: int = 0, step: int = 0) -> PlaneEstimate:
+def estimate_from_field(
+    model: RadianceModel, inputs: list[View], scene: SceneData, seed: int = 0, step: int = 0
+) -> PlaneEstimate:
     """The mirror plane of a field fitted to the `inputs` alone (steps 2-3 of the module docstring);
     `step`: how many steps the field trained, for the record."""
     t0 = time.perf_counter()
@@ -107,7 +116,9 @@ def read_estimate(path: Path | None) -> PlaneEstimate | None:
     try:
         return PlaneEstimate.from_dict(json.loads(path.read_text()))
     except (ValueError, KeyError, TypeError) as e:
-        raise UserError(f"cannot read the estimated plane {path} ({type(e).__name__}); delete it to estimate again") from None
+        raise UserError(
+            f"cannot read the estimated plane {path} ({type(e).__name__}); delete it to estimate again"
+        ) from None
 
 
 def estimate_or_read(

@@ -14,9 +14,14 @@ class ProgressObserver(Observer):
     """One bar per run. The bench gives each worker its own row (`position`) and label."""
 
     def __init__(
-        self, file=None, disable: bool = False, label: str | None = None, position: int | None = None,
-        leave: bool = True, bar_cls: Any = tqdm,
-    ) -> None:  # fmt: skip
+        self,
+        file=None,
+        disable: bool = False,
+        label: str | None = None,
+        position: int | None = None,
+        leave: bool = True,
+        bar_cls: Any = tqdm,
+    ) -> None:
         self.file = file if file is not None else sys.stderr
         self.disable, self.label, self.position, self.leave, self.bar_cls = disable, label, position, leave, bar_cls
         self.bar: Any = None
@@ -24,9 +29,13 @@ class ProgressObserver(Observer):
 
     def on_setup(self, event: SetupEvent) -> None:
         desc = f"{event.scene} {self.label or event.method} " + (f"cfg{event.config}" if event.config else "inputs")
-        kw = {} if self.bar_cls is not tqdm else dict(
-            file=self.file, disable=self.disable, dynamic_ncols=True, position=self.position, leave=self.leave
-        )  # fmt: skip
+        kw = (
+            {}
+            if self.bar_cls is not tqdm
+            else dict(
+                file=self.file, disable=self.disable, dynamic_ncols=True, position=self.position, leave=self.leave
+            )
+        )
         self.bar = self.bar_cls(total=event.total_steps, desc=desc, unit="step", **kw)
 
     def on_step(self, event: StepEvent) -> None:

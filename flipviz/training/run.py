@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterable
 from dataclasses import fields, replace
 from pathlib import Path
-from typing import Iterable
 
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
@@ -33,7 +33,9 @@ def make_trainer(cfg: TrainConfig, scene: SceneData | None = None, resume_unfini
     return Trainer(replace(cfg, overwrite=True), scene)
 
 
-def train(cfg: TrainConfig, observers: Iterable[Observer] = (), resume_unfinished: bool = False) -> tuple[Trainer, dict]:
+def train(
+    cfg: TrainConfig, observers: Iterable[Observer] = (), resume_unfinished: bool = False
+) -> tuple[Trainer, dict]:
     """Train one run to the end (Ctrl-C stops it gracefully); returns the trainer and its final metrics."""
     trainer = make_trainer(cfg, resume_unfinished=resume_unfinished)
     for obs in observers:
@@ -67,7 +69,9 @@ def open_run(run: Path | str, device: str | None = None, scene: SceneData | None
     try:
         path = checkpoint_path(run)
     except FileNotFoundError:
-        raise UserError(f"{run} is not a run folder with a checkpoint (bench runs keep theirs with --keep-checkpoints)") from None
+        raise UserError(
+            f"{run} is not a run folder with a checkpoint (bench runs keep theirs with --keep-checkpoints)"
+        ) from None
     cfg = run_config(load_checkpoint(path).get("config"))
     cfg = replace(cfg, resume=path, out=path.parent, device=device or cfg.device, no_rrd=True).validate()
     if cfg.data is not None and not os.path.exists(cfg.data):  # False for a name the system refuses

@@ -1,18 +1,18 @@
 """Everything a run trains with, built once from its config and scene, in the paper's order.
 
-    split      = the protocol's inputs / unobserved tests / Upper views     (data/protocol.py),
-                 or a capture's chosen inputs and held-out frames            (data/selection.py)
-    estimate   = with --mirror-plane auto, the plane estimated from inputs  (plane_estimate.py):
-                 from the run's own field after its input-only steps (the trainer builds the run
-                 again then, keeping the field), or from a separate fit (--estimate-after 0);
-                 not confident: no mirrored view is trained on (--unconfident-plane drop);
-                 mirrors that are trained and disagree with the inputs are dropped later
-                 (flip.py: the agreement gate)
-    mirrors    = flipped inputs with their initial poses                    (flip.py, step 1)
-    training   = the method's views and their ray bank                      (methods.py)
-    model      = radiance field + renderer                                  (model/radiance.py)
-    flip       = what Just Flip moves and how it scores a batch             (flip.py: the plane,
-                 BA of the mirrored poses, MSE then the NLL on uncertain rays)
+split      = the protocol's inputs / unobserved tests / Upper views     (data/protocol.py),
+             or a capture's chosen inputs and held-out frames            (data/selection.py)
+estimate   = with --mirror-plane auto, the plane estimated from inputs  (plane_estimate.py):
+             from the run's own field after its input-only steps (the trainer builds the run
+             again then, keeping the field), or from a separate fit (--estimate-after 0);
+             not confident: no mirrored view is trained on (--unconfident-plane drop);
+             mirrors that are trained and disagree with the inputs are dropped later
+             (flip.py: the agreement gate)
+mirrors    = flipped inputs with their initial poses                    (flip.py, step 1)
+training   = the method's views and their ray bank                      (methods.py)
+model      = radiance field + renderer                                  (model/radiance.py)
+flip       = what Just Flip moves and how it scores a batch             (flip.py: the plane,
+             BA of the mirrored poses, MSE then the NLL on uncertain rays)
 """
 
 from __future__ import annotations
@@ -60,17 +60,27 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
         field = NerfConfig(barf_c2f=c2f, lr_decay=PAPER_LR_DECAY) if cfg.preset == "paper" else NerfConfig(barf_c2f=c2f)
     elif cfg.grid_res is not None:
         n_up = len(cfg.grid_res) - 1  # upsample at evenly spread fractions of the first half
-        field = GridConfig(grid_res=tuple(cfg.grid_res), upsample_at=tuple(0.5 * (i + 1) / (n_up + 1) for i in range(n_up)))
+        field = GridConfig(
+            grid_res=tuple(cfg.grid_res), upsample_at=tuple(0.5 * (i + 1) / (n_up + 1) for i in range(n_up))
+        )
     else:
         field = GridConfig()
     entropy = {"w_entropy": 0.0} if cfg.preset == "paper" else {}  # vanilla NeRF has no entropy term
-    return ModelConfig(field=field, n_samples=cfg.n_samples, beta2_mode=cfg.beta2_mode, background=cfg.background,
-                       beta_from=cfg.beta_from, **entropy)  # fmt: skip
+    return ModelConfig(
+        field=field,
+        n_samples=cfg.n_samples,
+        beta2_mode=cfg.beta2_mode,
+        background=cfg.background,
+        beta_from=cfg.beta_from,
+        **entropy,
+    )
 
 
 def fresh_model(cfg: TrainConfig, scene: SceneData, with_beta: bool) -> RadianceModel:
     """A newly initialised model of the run (the agreement gate's restart builds one mid-run)."""
-    return RadianceModel(model_config(cfg), scene.bbox, scene.near, scene.far, with_beta=with_beta, device=torch.device(cfg.device))
+    return RadianceModel(
+        model_config(cfg), scene.bbox, scene.near, scene.far, with_beta=with_beta, device=torch.device(cfg.device)
+    )
 
 
 def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
@@ -91,9 +101,12 @@ def mirrors_join_at(cfg: TrainConfig) -> int:
 
 
 def build_run(
-    cfg: TrainConfig, scene: SceneData, saved_estimate: Path | None = None, estimate: PlaneEstimate | None = None,
+    cfg: TrainConfig,
+    scene: SceneData,
+    saved_estimate: Path | None = None,
+    estimate: PlaneEstimate | None = None,
     model: RadianceModel | None = None,
-) -> RunSetup:  # fmt: skip
+) -> RunSetup:
     """Everything a run trains with. `saved_estimate`: the plane.json of a run being resumed; `estimate`:
     auto's plane, estimated from the run's own `model` after its input-only steps (that field trains on)."""
     check_image_size(*scene.resolution, f"the images of {scene.source or scene.name}")
@@ -111,17 +124,23 @@ def build_run(
         spec = spec.without_mirrors()
     elif estimate is not None:
         if not estimate.confident and cfg.unconfident_plane == "drop":
-            log.warning("training without the mirrored views: the plane is not confident (--unconfident-plane use keeps them)")
+            log.warning(
+                "training without the mirrored views: the plane is not confident (--unconfident-plane use keeps them)"
+            )
             spec = spec.without_mirrors()
             with_beta = spec.uses_beta
         elif not estimate.confident:
-            log.warning("the plane is not confident: its mirrored views train while they agree with the inputs "
-                        "(--disagreement-limit; --unconfident-plane drop trains without them)")  # fmt: skip
+            log.warning(
+                "the plane is not confident: its mirrored views train while they agree with the inputs "
+                "(--disagreement-limit; --unconfident-plane drop trains without them)"
+            )
     mirrors = flip.mirrored_views(cfg, split.inputs, scene, estimate.plane if estimate else None)
     training = build_training_set(
         spec, split.inputs, flip.mirrored_train_views(spec, mirrors, scene.bbox), split.uppers, device=device
     )
     model = model if model is not None else fresh_model(cfg, scene, with_beta)
     plane = mirrors.plane if spec.mirrors else None
-    hooks = flip.Flip(cfg, training, plane, model.cfg.beta_min, device, mirrors_join_at(cfg) if plane is not None else 0)
+    hooks = flip.Flip(
+        cfg, training, plane, model.cfg.beta_min, device, mirrors_join_at(cfg) if plane is not None else 0
+    )
     return RunSetup(scene, spec, split, mirrors, estimate, warm_up, training, model, hooks)

@@ -36,9 +36,9 @@ from flipviz.geometry.symmetry import PlaneEstimate, plane_error
 from flipviz.model.objective import psnr
 from flipviz.runtime import keep_freed_memory
 from flipviz.training import artifacts
-from flipviz.training.artifacts import PLANE_FILE
 from flipviz.training import checkpoint as ckpt
 from flipviz.training import evaluate as ev
+from flipviz.training.artifacts import PLANE_FILE
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import (
     CameraInfo,
@@ -226,7 +226,9 @@ class Trainer:
             if self.model.update_schedule(field_step, cfg.steps):  # grids upsampled: new parameters
                 self.opt_field = self.model.make_optimizer()
         self.model.adjust_lr(self.opt_field, field_step, cfg.steps)
-        idx = self.flip.sample(cfg.batch_rays, self._gen, self.step)  # (R,): the inputs' alone before the mirrors join, after a drop
+        idx = self.flip.sample(
+            cfg.batch_rays, self._gen, self.step
+        )  # (R,): the inputs' alone before the mirrors join, after a drop
         view = bank.view[idx]
         o, d = rays_from_c2w(self.current_poses()[view], bank.dirs_cam[idx])  # (R, 3) each
         out = self.model.render_rays(o, d, training=True)
@@ -252,8 +254,11 @@ class Trainer:
     def _restart_field(self) -> None:
         """After the agreement gate dropped the mirrors: a fresh field, seeded as B/L's, trains on the
         inputs alone for the full cfg.steps from here (the run then ends as B/L would)."""
-        log.warning("step %d: restarting the field on the inputs alone for %d steps (--after-drop restart)",
-                    self.step, self.cfg.steps)  # fmt: skip
+        log.warning(
+            "step %d: restarting the field on the inputs alone for %d steps (--after-drop restart)",
+            self.step,
+            self.cfg.steps,
+        )
         with signals_deferred():
             self._new_field(self.step)
             self._gen = torch.Generator().manual_seed(self.cfg.seed)
@@ -268,7 +273,8 @@ class Trainer:
 
     # ------------------------------------------------------------------ the loop
     def run(self) -> dict:
-        """Train to total_steps (cfg.steps, longer after a restart; or until stopped / NaN); returns the final metrics."""
+        """Train to total_steps (cfg.steps, longer after a restart; or until stopped / NaN); returns the
+        final metrics."""
         cfg = self.cfg
         if self.read_only:
             raise RuntimeError("a run opened read-only (open_run) renders; it does not train")
@@ -286,8 +292,17 @@ class Trainer:
                     scalars = self._train_step()
                 self.train_seconds += time.perf_counter() - t0
                 if self.step % cfg.log_every == 0 or self.step == self.total_steps:
-                    self._emit("on_step", StepEvent(self.step, self.total_steps, self.train_seconds, scalars,
-                                                 **self._pose_report(), **self._plane_now()))  # fmt: skip
+                    self._emit(
+                        "on_step",
+                        StepEvent(
+                            self.step,
+                            self.total_steps,
+                            self.train_seconds,
+                            scalars,
+                            **self._pose_report(),
+                            **self._plane_now(),
+                        ),
+                    )
                 if cfg.images_every > 0 and self.step % cfg.images_every == 0 and self.step < self.total_steps:
                     self._emit("on_images", self._images_event())
                 if cfg.checkpoint_every > 0 and self.step % cfg.checkpoint_every == 0:
@@ -303,7 +318,10 @@ class Trainer:
             status, message = "error", f"{type(e).__name__}: {e}"
             log.exception("training failed")
         if status in ("finished", "stopped") and not ckpt.state_is_finite(self.model.state_dict()):
-            status, message = "nan", f"the model is not finite at step {self.step}; last good checkpoint kept in {self.run_dir}"
+            status, message = (
+                "nan",
+                f"the model is not finite at step {self.step}; last good checkpoint kept in {self.run_dir}",
+            )
         metrics: dict = {}
         try:
             if status in ("finished", "stopped") and self.save_checkpoint() is not None:
@@ -334,10 +352,17 @@ class Trainer:
         tests = self.split.tests
         outs = self.render_tests() if renders is None else renders
         preds = [o["rgb"] for o in outs]
-        structure = [ev.structure_scores(o["rgb"], v.rgb, o["opacity"], v.alpha, o["depth"], true_depth(self.scene, v.camera))
-                     for o, v in zip(outs, tests)]  # fmt: skip
+        structure = [
+            ev.structure_scores(o["rgb"], v.rgb, o["opacity"], v.alpha, o["depth"], true_depth(self.scene, v.camera))
+            for o, v in zip(outs, tests)
+        ]
         m = ev.score_views(preds, [v.rgb for v in tests], [v.name for v in tests], structure)
-        m.update(train_seconds=self.train_seconds, steps=self.step, **ev.blank_scores([v.rgb for v in tests]), **self.report())
+        m.update(
+            train_seconds=self.train_seconds,
+            steps=self.step,
+            **ev.blank_scores([v.rgb for v in tests]),
+            **self.report(),
+        )
         if write:
             with cannot_write(self.run_dir, "the results in"):
                 artifacts.write_test_renders(self.run_dir, [v.name for v in tests], preds, [v.rgb for v in tests])
@@ -351,10 +376,17 @@ class Trainer:
         """What a run's metrics say besides its scores: the run, its mirrors' coverage of the
         unobserved views, its plane and its mirrored poses."""
         tests = self.split.tests
-        m = dict(method=self.cfg.method, config=self.split.config, scene=self.scene.name,
-                 mirror_plane=self.cfg.mirror_plane, settings=self.cfg.to_dict())  # fmt: skip
+        m = dict(
+            method=self.cfg.method,
+            config=self.split.config,
+            scene=self.scene.name,
+            mirror_plane=self.cfg.mirror_plane,
+            settings=self.cfg.to_dict(),
+        )
         # the mirrors this configuration gives (built for every method, so B/L rows carry it too)
-        m["coverage"] = coverage([v.camera for v in tests], [v.camera for v in self.mirrors.views], self.mirrors.sphere.center)
+        m["coverage"] = coverage(
+            [v.camera for v in tests], [v.camera for v in self.mirrors.views], self.mirrors.sphere.center
+        )
         if self.spec.mirrors or self.plane_estimate is not None:
             m["plane"] = self._plane_report()
         pose = self._pose_report()
@@ -406,9 +438,13 @@ class Trainer:
             raise UserError(f"cannot resume: {path} is not a flipviz checkpoint (its config is not a table)")
         for key in ("method", "field", "scene", "config"):
             if key in theirs and not isinstance(theirs[key], (str, int, type(None))):
-                raise UserError(f"cannot resume: {path} is not a flipviz checkpoint (its {key} is a {type(theirs[key]).__name__})")
+                raise UserError(
+                    f"cannot resume: {path} is not a flipviz checkpoint (its {key} is a {type(theirs[key]).__name__})"
+                )
             if key in theirs and theirs[key] != getattr(self.cfg, key) and not (key == "scene" and self.cfg.data):
-                raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {getattr(self.cfg, key)!r}")
+                raise UserError(
+                    f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {getattr(self.cfg, key)!r}"
+                )
         try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
             start = state.get("field_start", 0)
             if isinstance(start, bool) or not isinstance(start, int) or start < 0:
@@ -447,16 +483,29 @@ class Trainer:
         cams += [CameraInfo("test", v.camera, v.rgb, v.name, v.alpha) for v in self.split.tests]
         cams += [CameraInfo("upper", v.camera, v.rgb, v.name) for v in self.split.uppers]
         return SetupEvent(
-            run_name=self.run_dir.name, scene=self.scene.name, method=self.cfg.method, config=self.split.config,
-            total_steps=self.cfg.steps, sphere_center=ms.sphere.center.copy(), sphere_radius=float(ms.sphere.radius),
-            plane=ms.plane if self.spec.mirrors else None, true_plane=self.scene.symmetry_plane, cameras=cams,
-            bbox=np.asarray(self.scene.bbox, dtype=np.float64), settings=self.cfg.to_dict(),
-            up=np.asarray(self.scene.up, dtype=np.float64), plane_estimate=self.plane_estimate,
-        )  # fmt: skip
+            run_name=self.run_dir.name,
+            scene=self.scene.name,
+            method=self.cfg.method,
+            config=self.split.config,
+            total_steps=self.cfg.steps,
+            sphere_center=ms.sphere.center.copy(),
+            sphere_radius=float(ms.sphere.radius),
+            plane=ms.plane if self.spec.mirrors else None,
+            true_plane=self.scene.symmetry_plane,
+            cameras=cams,
+            bbox=np.asarray(self.scene.bbox, dtype=np.float64),
+            settings=self.cfg.to_dict(),
+            up=np.asarray(self.scene.up, dtype=np.float64),
+            plane_estimate=self.plane_estimate,
+        )
 
     def _plane_report(self) -> dict:
         """The mirror plane used, its estimate (auto), and its error against the scene's true plane."""
-        rep: dict = {"used": self.mirrors.plane.to_dict(), "preset": self.cfg.mirror_plane, "trained": self.spec.mirrors}
+        rep: dict = {
+            "used": self.mirrors.plane.to_dict(),
+            "preset": self.cfg.mirror_plane,
+            "trained": self.spec.mirrors,
+        }
         # trained: False when the mirrors were dropped at setup (the estimate's confidence) or by the agreement gate
         if self.plane_estimate is not None:  # not trained: dropped for its confidence (--unconfident-plane)
             rep["confidence"] = self.plane_estimate.confidence
@@ -510,6 +559,8 @@ class Trainer:
         """Test views and mirrored views with the current field (`test_renders`: render_tests(), if made)."""
         rs = test_renders or [None] * len(self.split.tests)
         tests = [self._rendered("test", v.camera, v.rgb, r) for v, r in zip(self.split.tests, rs)]
-        mirrors = [self._rendered("mirror", c, v.image) for v, c in zip(self.training.mirror_views, self.mirror_cameras())]
+        mirrors = [
+            self._rendered("mirror", c, v.image) for v, c in zip(self.training.mirror_views, self.mirror_cameras())
+        ]
         scalars = {"test_psnr": float(np.mean([ev.image_psnr(t.rgb, t.gt) for t in tests]))} if tests else {}
         return ImagesEvent(self.step, tests, mirrors, scalars)

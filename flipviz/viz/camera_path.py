@@ -109,7 +109,9 @@ def unobserved_path(setup, n: int) -> list[Camera]:
 # ---- keyframes on disk --------------------------------------------------------------------------
 def write_keyframes(path: Path | str, cameras: list[Camera], fps: int = 24) -> Path:
     """The app's recorded camera path: poses (OpenGL c2w), vertical field of view and aspect."""
-    keys = [{"c2w": c.c2w.tolist(), "fov_y_deg": float(np.degrees(c.fov_y)), "aspect": c.width / c.height} for c in cameras]
+    keys = [
+        {"c2w": c.c2w.tolist(), "fov_y_deg": float(np.degrees(c.fov_y)), "aspect": c.width / c.height} for c in cameras
+    ]
     return write_json(path, {"format": "flipviz-keyframes", "fps": fps, "keyframes": keys})
 
 

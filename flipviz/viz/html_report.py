@@ -46,10 +46,12 @@ img { max-width: 100%; image-rendering: auto; } .pixel img { image-rendering: pi
 {% for s in sections %}<section id="{{ s.anchor }}">
 {% if s.heading %}<h2>{{ s.heading }}</h2>{% endif %}
 {{ s.html | safe }}
-{% for fig in s.figures %}<figure class="{{ fig.css }}"><img alt="{{ fig.caption }}" src="{{ fig.uri }}" style="width: {{ fig.width }}">
+{% for fig in s.figures %}<figure class="{{ fig.css }}">
+<img alt="{{ fig.caption }}" src="{{ fig.uri }}" style="width: {{ fig.width }}">
 {% if fig.caption %}<figcaption>{{ fig.caption }}</figcaption>{% endif %}</figure>{% endfor %}
 </section>{% endfor %}
-<p class="note">Written by flipviz; a self-contained page (images embedded, no scripts): open it in any browser, offline.</p>
+<p class="note">Written by flipviz; a self-contained page (images embedded, no scripts):
+open it in any browser, offline.</p>
 </body></html>
 """)
 
@@ -128,24 +130,45 @@ def camera_map(setup, mirror_c2w: np.ndarray | None) -> np.ndarray:
 
     fig, ax = plt.subplots(figsize=(5.2, 5.2), dpi=100)
     c = np.asarray(setup.sphere_center)
-    kinds = (("input", "inputs"), ("test", "unobserved tests"), ("mirror_init", "mirrored, initial"),
-             ("mirror_true", "exact reflections"))  # fmt: skip
+    kinds = (
+        ("input", "inputs"),
+        ("test", "unobserved tests"),
+        ("mirror_init", "mirrored, initial"),
+        ("mirror_true", "exact reflections"),
+    )
     for kind, label in kinds:
-        pts = np.array([i.camera.center for i in setup.cameras if i.kind == kind and (kind != "mirror_init" or setup.plane)])
+        pts = np.array(
+            [i.camera.center for i in setup.cameras if i.kind == kind and (kind != "mirror_init" or setup.plane)]
+        )
         if len(pts):
             ax.scatter(pts[:, 0], pts[:, 1], s=28, color=palette.hex_color(palette.CAMERA[kind]), label=label)
     if mirror_c2w is not None:
         pts = mirror_c2w[:, :3, 3]
-        ax.scatter(pts[:, 0], pts[:, 1], s=28, marker="x", color=palette.hex_color(palette.CAMERA["mirror"]), label="mirrored, BA-refined")
-    for plane, color, label in ((setup.plane, palette.MIRROR_PLANE, "mirror plane"), (setup.true_plane, palette.TRUE_PLANE, "true plane")):
+        ax.scatter(
+            pts[:, 0],
+            pts[:, 1],
+            s=28,
+            marker="x",
+            color=palette.hex_color(palette.CAMERA["mirror"]),
+            label="mirrored, BA-refined",
+        )
+    for plane, color, label in (
+        (setup.plane, palette.MIRROR_PLANE, "mirror plane"),
+        (setup.true_plane, palette.TRUE_PLANE, "true plane"),
+    ):
         if plane is None:
             continue
         d = np.cross(np.asarray(setup.up), plane.normal)[:2]  # the plane's trace on the ground
         if np.linalg.norm(d) > 1e-6:
             d = d / np.linalg.norm(d) * 1.2 * setup.sphere_radius
             p = np.asarray(plane.point)[:2]
-            ax.plot([p[0] - d[0], p[0] + d[0]], [p[1] - d[1], p[1] + d[1]], color=palette.hex_color(color), label=label,
-                    linestyle="-" if label == "mirror plane" else "--")  # fmt: skip
+            ax.plot(
+                [p[0] - d[0], p[0] + d[0]],
+                [p[1] - d[1], p[1] + d[1]],
+                color=palette.hex_color(color),
+                label=label,
+                linestyle="-" if label == "mirror plane" else "--",
+            )
     ax.scatter([c[0]], [c[1]], marker="+", color="black", s=60, label="sphere centre")
     ax.set_aspect("equal")
     ax.grid(alpha=0.3)
@@ -165,21 +188,35 @@ def camera_map(setup, mirror_c2w: np.ndarray | None) -> np.ndarray:
 def _summary(trainer, metrics: dict) -> str:
     cfg = trainer.cfg
     rows = [
-        ("scene", trainer.scene.name), ("method", METHOD_LABELS[cfg.method]),
-        ("views", f"configuration {trainer.split.config}" if trainer.split.config else f"inputs {cfg.inputs or '(capture split)'}"),
-        ("steps", trainer.step), ("resolution", f"{cfg.res} px"), ("field", cfg.field),
-        ("mirror plane", cfg.mirror_plane), ("mirror pose", cfg.mirror_pose),
+        ("scene", trainer.scene.name),
+        ("method", METHOD_LABELS[cfg.method]),
+        (
+            "views",
+            f"configuration {trainer.split.config}"
+            if trainer.split.config
+            else f"inputs {cfg.inputs or '(capture split)'}",
+        ),
+        ("steps", trainer.step),
+        ("resolution", f"{cfg.res} px"),
+        ("field", cfg.field),
+        ("mirror plane", cfg.mirror_plane),
+        ("mirror pose", cfg.mirror_pose),
         ("training time", f"{trainer.train_seconds:.0f} s on {cfg.device}"),
-    ]  # fmt: skip
+    ]
     if "psnr" in metrics:
         rows += [("PSNR, unobserved views", f"{metrics['psnr']:.2f} dB"), ("SSIM", f"{metrics['ssim']:.3f}")]
     if "iou" in metrics:  # the object's own scores (training/evaluate.py)
-        rows += [("silhouette IoU", f"{metrics['iou']:.3f}"), ("PSNR inside the object", f"{metrics['psnr_object']:.2f} dB")]
+        rows += [
+            ("silhouette IoU", f"{metrics['iou']:.3f}"),
+            ("PSNR inside the object", f"{metrics['psnr_object']:.2f} dB"),
+        ]
     if "depth_abs" in metrics:
         rows.append(("depth error (world units)", f"{metrics['depth_abs']:.3f}"))
     plane = metrics.get("plane", {})
     if "error_deg" in plane:
-        rows.append(("plane error vs the true plane", f"{plane['error_deg']:.2f} deg, offset {plane['error_offset']:.3f}"))
+        rows.append(
+            ("plane error vs the true plane", f"{plane['error_deg']:.2f} deg, offset {plane['error_offset']:.3f}")
+        )
     table = "| setting | value |\n|---|---|\n" + "\n".join(f"| {k} | {v} |" for k, v in rows)
     return markdown(table)
 
@@ -206,21 +243,41 @@ def run_page(cfg: ReportConfig) -> str:
     for v in trainer.split.tests:
         cam = v.camera.resized(cfg.res)
         tests.append(Figure(png_uri(compose_row(v.name, trainer.render(cam), gt(cam)))))
-    sections.append(Section("Unobserved views", markdown(
-        "Render, ground truth (where known), |render - ground truth| and the learned variance beta^2 of each held-out "
-        f"view: {label}."), tests))  # fmt: skip
+    sections.append(
+        Section(
+            "Unobserved views",
+            markdown(
+                "Render, ground truth (where known), |render - ground truth| and the learned variance beta^2 "
+                "of each held-out "
+                f"view: {label}."
+            ),
+            tests,
+        )
+    )
     mirrors = []
     for view, cam in zip(trainer.training.mirror_views, trainer.mirror_cameras()):
         out = trainer.render(cam)
         panels = [to_uint8(view.image), to_uint8(out["rgb"])]
         if out.get("beta2") is not None:
             panels.append(palette.colormap(out["beta2"], *palette.BETA2_RANGE))
-        caption = f"{cam.name}: flipped input | render at the refined pose" + (" | beta^2 (0-0.1)" if len(panels) == 3 else "")
-        mirrors.append(Figure(png_uri(np.concatenate(panels, axis=1)), caption, width=f"{cfg.res * len(panels)}px", css="pixel"))
+        caption = f"{cam.name}: flipped input | render at the refined pose" + (
+            " | beta^2 (0-0.1)" if len(panels) == 3 else ""
+        )
+        mirrors.append(
+            Figure(png_uri(np.concatenate(panels, axis=1)), caption, width=f"{cfg.res * len(panels)}px", css="pixel")
+        )
     if mirrors:
-        sections.append(Section("Mirrored views", markdown(
-            "Each flipped input, the model seen from its BA-refined pose and beta^2 there: where beta^2 rises, the mirror "
-            "contradicts what the model learned from the other views (a symmetry-breaking part)."), mirrors))  # fmt: skip
+        sections.append(
+            Section(
+                "Mirrored views",
+                markdown(
+                    "Each flipped input, the model seen from its BA-refined pose and beta^2 there: "
+                    "where beta^2 rises, the mirror "
+                    "contradicts what the model learned from the other views (a symmetry-breaking part)."
+                ),
+                mirrors,
+            )
+        )
     if cfg.gif_frames > 0:
         small = GifFrames(step=1, max_panel=GIF_WIDTH)
         cams = [c.resized(min(cfg.res, GIF_WIDTH)) for c in unobserved_path(setup, cfg.gif_frames)]

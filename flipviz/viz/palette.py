@@ -30,6 +30,7 @@ SPHERE: RGB = (120, 160, 255)
 PROBE: RGB = (0, 200, 200)  # cyan: where the pixel probe's ray meets the surface
 TRAJECTORY: RGB = CAMERA["mirror"]
 
+
 def hex_color(rgb: RGB) -> str:
     """'#rrggbb' for web widgets (charts)."""
     return "#{:02x}{:02x}{:02x}".format(*rgb)
@@ -94,7 +95,10 @@ LEGEND: tuple[tuple[tuple[RGB, ...], str], ...] = (  # (colour(s), what): every 
     ((CAMERA["novel"],), "your novel cameras and keyframes"),
     ((SPHERE,), "the fitted camera sphere"),
     ((PROBE,), "the pixel probe's point on the surface"),
-    (tuple(score_color(db) for db in (SCORE_RANGE[0], sum(SCORE_RANGE) / 2, SCORE_RANGE[1])), "mirror scores: contradicts / partly / agrees"),
+    (
+        tuple(score_color(db) for db in (SCORE_RANGE[0], sum(SCORE_RANGE) / 2, SCORE_RANGE[1])),
+        "mirror scores: contradicts / partly / agrees",
+    ),
 )
 
 

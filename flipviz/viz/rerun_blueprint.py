@@ -56,7 +56,9 @@ def make_blueprint(
     )
     test_grid = rrb.Grid(
         contents=[
-            _view2d(f"/views/test/{n}/{part}", title) for n in t for part, title in (("render", n), ("gt", "GT"), ("error", "err"))
+            _view2d(f"/views/test/{n}/{part}", title)
+            for n in t
+            for part, title in (("render", n), ("gt", "GT"), ("error", "err"))
         ],
         grid_columns=6,
         name="test: render | GT | error",
@@ -71,7 +73,9 @@ def make_blueprint(
         name="mirrored: render | flipped | beta^2",
     )
     depth_grid = rrb.Grid(
-        contents=[_view2d(f"/views/test/{n}/{part}", title) for n in t for part, title in (("depth", n), ("opacity", "op"))],
+        contents=[
+            _view2d(f"/views/test/{n}/{part}", title) for n in t for part, title in (("depth", n), ("opacity", "op"))
+        ],
         grid_columns=8,
         name="test: depth | opacity",
     )
@@ -106,8 +110,11 @@ def make_blueprint(
     right.append(curves)
     shares.append(1.6)
     return rrb.Blueprint(
-        rrb.Horizontal(rrb.Tabs(scene, model, active_tab=0), rrb.Vertical(contents=right, row_shares=shares),
-                       column_shares=[1.0, 1.2]),  # fmt: skip
+        rrb.Horizontal(
+            rrb.Tabs(scene, model, active_tab=0),
+            rrb.Vertical(contents=right, row_shares=shares),
+            column_shares=[1.0, 1.2],
+        ),
         rrb.TimePanel(timeline=STEP, state="collapsed", play_state="following"),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),

@@ -88,22 +88,33 @@ def compare_blueprint(labels: list[str], tests: dict[str, list[str]]) -> rrb.Blu
     columns = []
     for label in labels:
         grid = rrb.Grid(
-            contents=[rrb.Spatial2DView(origin=f"/{label}/views/test/{n}/{part}", name=f"{n} {part}")
-                      for n in tests[label] for part in ("render", "error")],  # fmt: skip
+            contents=[
+                rrb.Spatial2DView(origin=f"/{label}/views/test/{n}/{part}", name=f"{n} {part}")
+                for n in tests[label]
+                for part in ("render", "error")
+            ],
             grid_columns=4,
             name="test: render | error",
         )
-        columns.append(rrb.Vertical(
-            rrb.Spatial3DView(origin=f"/{label}/world", name=f"{label}: scene"),
-            grid,
-            row_shares=[1.0, 1.4],
-            name=label,
-        ))  # fmt: skip
+        columns.append(
+            rrb.Vertical(
+                rrb.Spatial3DView(origin=f"/{label}/world", name=f"{label}: scene"),
+                grid,
+                row_shares=[1.0, 1.4],
+                name=label,
+            )
+        )
     shared = rrb.Horizontal(
-        rrb.TimeSeriesView(origin="/", contents=[f"/{label}/curves/test/**" for label in labels], name="test PSNR (dB), all runs"),
-        rrb.TimeSeriesView(origin="/", contents=[f"/{label}/curves/train/psnr" for label in labels], name="training PSNR (dB)"),
         rrb.TimeSeriesView(
-            origin="/", contents=[f"/{label}/curves/mirror/rot_err_deg/**" for label in labels], name="mirror rotation error (deg)"
+            origin="/", contents=[f"/{label}/curves/test/**" for label in labels], name="test PSNR (dB), all runs"
+        ),
+        rrb.TimeSeriesView(
+            origin="/", contents=[f"/{label}/curves/train/psnr" for label in labels], name="training PSNR (dB)"
+        ),
+        rrb.TimeSeriesView(
+            origin="/",
+            contents=[f"/{label}/curves/mirror/rot_err_deg/**" for label in labels],
+            name="mirror rotation error (deg)",
         ),
     )
     return rrb.Blueprint(
@@ -133,7 +144,9 @@ def write_comparison(runs: list[Path], out: Path, grpc_url: str | None = None) -
             finally:
                 rec.disconnect()
     except RuntimeError as e:  # the file writer failed (the disk filled up meanwhile); no partial file is left
-        raise UserError(f"cannot write {out}: {str(e).splitlines()[0]} ({free_bytes(out) / 1e6:.0f} MB free on that disk)") from None
+        raise UserError(
+            f"cannot write {out}: {str(e).splitlines()[0]} ({free_bytes(out) / 1e6:.0f} MB free on that disk)"
+        ) from None
     except OSError as e:
         raise UserError(f"cannot write {out}: {e.strerror or e}") from None
     return Path(out), labels

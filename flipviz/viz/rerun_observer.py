@@ -17,9 +17,9 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import matplotlib
 import numpy as np
@@ -31,7 +31,16 @@ from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
 from flipviz.files import free_bytes, next_free, signals_deferred
 from flipviz.training.config import TrainConfig
-from flipviz.training.events import CameraInfo, EndEvent, ImagesEvent, Observer, RenderedView, SetupEvent, StepEvent, split_label
+from flipviz.training.events import (
+    CameraInfo,
+    EndEvent,
+    ImagesEvent,
+    Observer,
+    RenderedView,
+    SetupEvent,
+    StepEvent,
+    split_label,
+)
 from flipviz.viz import palette
 from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
 from flipviz.viz.rerun_viewer import RerunWebViewer
@@ -101,7 +110,9 @@ class RerunObserver(Observer):
         self._file_stopped = False  # the disk was nearly full: the file was finalised early
         self._frustum_scale = 0.3
         self._scalars: dict[str, tuple[list[int], list[np.ndarray]]] = {}  # per entity: steps, values (not yet sent)
-        self._poses: dict[str, tuple[list[int], list[np.ndarray]]] = {}  # per mirrored camera: steps, c2w (not yet sent)
+        self._poses: dict[
+            str, tuple[list[int], list[np.ndarray]]
+        ] = {}  # per mirrored camera: steps, c2w (not yet sent)
         self._plane_size, self._plane_moves = 1.0, False  # set by the SetupEvent
         self._series_colors = [tuple(int(255 * c) for c in rgb[:3]) for rgb in matplotlib.colormaps["tab10"].colors]
 
@@ -136,12 +147,18 @@ class RerunObserver(Observer):
         """Send the held-back curves and mirrored poses, one column per entity."""
         for path, (steps, values) in self._scalars.items():
             if steps and len({len(v) for v in values}) == 1:  # one width per entity (the mirrors do not change)
-                self.rec.send_columns(path, indexes=[rr.TimeColumn(STEP, sequence=steps)],
-                                      columns=rr.Scalars.columns(scalars=np.stack(values)))  # fmt: skip
+                self.rec.send_columns(
+                    path,
+                    indexes=[rr.TimeColumn(STEP, sequence=steps)],
+                    columns=rr.Scalars.columns(scalars=np.stack(values)),
+                )
         for path, (steps, poses) in self._poses.items():
             T = np.stack(poses)  # (N, 4, 4) camera-to-world
-            self.rec.send_columns(path, indexes=[rr.TimeColumn(STEP, sequence=steps)],
-                                  columns=rr.Transform3D.columns(translation=T[:, :3, 3], mat3x3=T[:, :3, :3]))  # fmt: skip
+            self.rec.send_columns(
+                path,
+                indexes=[rr.TimeColumn(STEP, sequence=steps)],
+                columns=rr.Transform3D.columns(translation=T[:, :3, 3], mat3x3=T[:, :3, :3]),
+            )
         self._scalars, self._poses = {}, {}
 
     def _maybe_flush(self, force: bool = False) -> None:
@@ -166,8 +183,11 @@ class RerunObserver(Observer):
             self.rec.set_sinks(rr.GrpcSink(self.viewer.grpc_url))  # the file sink is finalised and dropped
         else:
             self.rec.disconnect()  # finalises the file; nothing is logged after (see `_silent`)
-        log.warning("the recording %s stops here: its disk has less than %.0f MB free; what it holds stays readable",
-                    path, self.opts.min_free_mb)  # fmt: skip
+        log.warning(
+            "the recording %s stops here: its disk has less than %.0f MB free; what it holds stays readable",
+            path,
+            self.opts.min_free_mb,
+        )
 
     @property
     def _silent(self) -> bool:
@@ -211,15 +231,27 @@ class RerunObserver(Observer):
         rec.log(
             "world/sphere",
             rr.Ellipsoids3D(
-                centers=[c], half_sizes=[[r, r, r]], colors=[palette.SPHERE], fill_mode="majorwireframe",
-                line_radii=0.004, labels=["least-squares sphere"],
+                centers=[c],
+                half_sizes=[[r, r, r]],
+                colors=[palette.SPHERE],
+                fill_mode="majorwireframe",
+                line_radii=0.004,
+                labels=["least-squares sphere"],
             ),
             static=True,
         )
         rec.log("world/sphere/center", rr.Points3D([c], radii=0.03, colors=[palette.SPHERE]), static=True)
-        rec.log("world/bbox", rr.Boxes3D(mins=[e.bbox[0]], sizes=[e.bbox[1] - e.bbox[0]], colors=[(90, 90, 90)],
-                                            fill_mode="majorwireframe", radii=0.003),
-                static=True)
+        rec.log(
+            "world/bbox",
+            rr.Boxes3D(
+                mins=[e.bbox[0]],
+                sizes=[e.bbox[1] - e.bbox[0]],
+                colors=[(90, 90, 90)],
+                fill_mode="majorwireframe",
+                radii=0.003,
+            ),
+            static=True,
+        )
         # The mirror plane used: a translucent square with its normal; the true plane: an outline. A plane
         # that training refines (--refine-plane) moves: it is logged at step 0 here and at every step after.
         self._plane_size = 0.6 * r
@@ -227,7 +259,9 @@ class RerunObserver(Observer):
         if self._plane_moves:
             rec.set_time(STEP, sequence=0)
         if e.plane is not None:
-            self._log_plane("world/mirror_plane", e.plane, palette.MIRROR_PLANE, filled=True, static=not self._plane_moves)
+            self._log_plane(
+                "world/mirror_plane", e.plane, palette.MIRROR_PLANE, filled=True, static=not self._plane_moves
+            )
         if e.true_plane is not None:
             self._log_plane("world/true_plane", e.true_plane, palette.TRUE_PLANE, filled=False, static=True)
         self._frustum_scale = 0.12 * r
@@ -246,8 +280,11 @@ class RerunObserver(Observer):
         self._prev_centers = np.stack([i.camera.center for i in inits]) if inits else None
         if inits:
             for q in ("rot_change_deg", "trans_change", "rot_err_deg", "trans_err"):
-                rec.log(f"curves/mirror/{q}", rr.SeriesLines(names=self._mirror_names, colors=self._series_colors),
-                        static=True)
+                rec.log(
+                    f"curves/mirror/{q}",
+                    rr.SeriesLines(names=self._mirror_names, colors=self._series_colors),
+                    static=True,
+                )
         settings = "\n".join(f"- **{k}**: {v}" for k, v in e.settings.items())
         rec.log(
             "run",
@@ -262,23 +299,39 @@ class RerunObserver(Observer):
     def _log_plane(self, path: str, plane: Plane, color: tuple[int, int, int], filled: bool, static: bool) -> None:
         quad, rec = plane.square(self._plane_size), self.rec
         if filled:
-            rec.log(path, rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]],
-                                    albedo_factor=(*color, 60)), static=static)  # fmt: skip
-        rec.log(f"{path}/outline", rr.LineStrips3D([np.vstack([quad, quad[:1]])], colors=[color], radii=0.006), static=static)
-        rec.log(f"{path}/normal", rr.Arrows3D(origins=[plane.point], vectors=[0.67 * self._plane_size * plane.normal],
-                                              colors=[color], radii=0.012), static=static)  # fmt: skip
+            rec.log(
+                path,
+                rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]], albedo_factor=(*color, 60)),
+                static=static,
+            )
+        rec.log(
+            f"{path}/outline",
+            rr.LineStrips3D([np.vstack([quad, quad[:1]])], colors=[color], radii=0.006),
+            static=static,
+        )
+        rec.log(
+            f"{path}/normal",
+            rr.Arrows3D(
+                origins=[plane.point], vectors=[0.67 * self._plane_size * plane.normal], colors=[color], radii=0.012
+            ),
+            static=static,
+        )
 
-    def _log_camera(self, path: str, cam: Camera, color: tuple[int, int, int], image: np.ndarray | None,
-                    pose_static: bool = True) -> None:
+    def _log_camera(
+        self, path: str, cam: Camera, color: tuple[int, int, int], image: np.ndarray | None, pose_static: bool = True
+    ) -> None:
         rec = self.rec
         rec.log(path, rr.Transform3D(translation=cam.c2w[:3, 3], mat3x3=cam.c2w[:3, :3]), static=pose_static)
         rec.log(path, rr.TransformAxes3D(axis_length=0.0), static=True)  # frustums only, no axis triads
         rec.log(
             path,
             rr.Pinhole(
-                image_from_camera=cam.K, resolution=[cam.width, cam.height],
+                image_from_camera=cam.K,
+                resolution=[cam.width, cam.height],
                 camera_xyz=rr.ViewCoordinates.RUB,  # flipviz cameras are OpenGL: x right, y up, looking along -z
-                image_plane_distance=self._frustum_scale, color=color, line_width=0.003,
+                image_plane_distance=self._frustum_scale,
+                color=color,
+                line_width=0.003,
             ),
             static=True,
         )
@@ -374,8 +427,13 @@ class RerunObserver(Observer):
                 return
             rec = self.rec
             rec.set_time(STEP, sequence=event.step)
-            rec.log("log", rr.TextLog(f"run {event.status} at step {event.step}. {event.message}".strip(),
-                                      level="ERROR" if event.status in ("nan", "error") else "INFO"))
+            rec.log(
+                "log",
+                rr.TextLog(
+                    f"run {event.status} at step {event.step}. {event.message}".strip(),
+                    level="ERROR" if event.status in ("nan", "error") else "INFO",
+                ),
+            )
             for k, v in event.metrics.items():
                 if isinstance(v, (int, float)) and not isinstance(v, bool):
                     rec.log(f"curves/final/{entity_name(k)}", rr.Scalars(float(v)))
@@ -419,15 +477,23 @@ def optimize_recording(path: Path, timeout_s: float = 300.0) -> bool:
     when replaced."""
     tmp = path.with_name(path.name + ".optimizing")
     try:
-        subprocess.run([sys.executable, "-m", "rerun_cli", "rrd", "optimize", str(path), "-o", str(tmp)],
-                       check=True, capture_output=True, timeout=timeout_s)  # fmt: skip
+        subprocess.run(
+            [sys.executable, "-m", "rerun_cli", "rrd", "optimize", str(path), "-o", str(tmp)],
+            check=True,
+            capture_output=True,
+            timeout=timeout_s,
+        )
         if not tmp.is_file() or tmp.stat().st_size == 0:
             raise RuntimeError("it wrote nothing")
         with signals_deferred():  # the recording is either the old file or the whole new one
             os.replace(tmp, path)
         return True
     except (OSError, RuntimeError, subprocess.SubprocessError) as e:
-        log.warning("recording %s kept as written (not compacted: %s)", path, str(e).splitlines()[0] if str(e) else type(e).__name__)
+        log.warning(
+            "recording %s kept as written (not compacted: %s)",
+            path,
+            str(e).splitlines()[0] if str(e) else type(e).__name__,
+        )
         tmp.unlink(missing_ok=True)
         return False
 
@@ -453,7 +519,9 @@ def recording_path(cfg: TrainConfig, run_dir: Path) -> Path | None:
     return path
 
 
-def make_rerun_observer(cfg: TrainConfig, run_dir: Path, bake: Callable[[], dict] | None = None, **overrides) -> RerunObserver:
+def make_rerun_observer(
+    cfg: TrainConfig, run_dir: Path, bake: Callable[[], dict] | None = None, **overrides
+) -> RerunObserver:
     """The observer the CLI and the app attach (see `recording_path`; cfg.rerun_serve); `bake`: the
     trainer's `point_cloud`, for the field's splats."""
     return RerunObserver(RerunOptions(path=recording_path(cfg, run_dir), serve=cfg.rerun_serve, **overrides), bake)

@@ -51,7 +51,7 @@ class RerunWebViewer:
     url: str  # what a browser opens
 
     @classmethod
-    def start(cls, grpc_port: int = 9876, web_port: int = 9090) -> "RerunWebViewer":
+    def start(cls, grpc_port: int = 9876, web_port: int = 9090) -> RerunWebViewer:
         """Start the viewer (web page + gRPC proxy) on free ports near the preferred ones."""
         grpc_port, web_port = free_port(grpc_port), free_port(web_port)
         cmd = [*_rerun_cli(), "--serve-web", "--bind", "127.0.0.1"]

@@ -56,7 +56,7 @@ class RunCurves:
     restarted: bool = False  # the field restarted after the drop (--after-drop restart: the run grew longer)
 
     @classmethod
-    def for_run(cls, setup: SetupEvent) -> "RunCurves":
+    def for_run(cls, setup: SetupEvent) -> RunCurves:
         limit = float(setup.settings.get("disagreement_limit", float("inf")))
         return cls(start_plane=setup.plane, true_plane=setup.true_plane, limit=limit, planned_steps=setup.total_steps)
 
@@ -85,7 +85,11 @@ class RunCurves:
             ref = self.true_plane if self.true_plane is not None else self.start_plane
             if ref is not None:
                 # plane error = (angle between normals, distance of the point from the reference plane)
-                deg_off = (ev.plane_err_deg, ev.plane_err_offset) if ev.plane_err_deg is not None else plane_error(ev.plane, ref)
+                deg_off = (
+                    (ev.plane_err_deg, ev.plane_err_offset)
+                    if ev.plane_err_deg is not None
+                    else plane_error(ev.plane, ref)
+                )
                 self.plane_steps.append(s)
                 self.plane_deg.append(float(deg_off[0]))
                 self.plane_offset.append(float(deg_off[1]))

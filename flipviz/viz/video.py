@@ -14,9 +14,10 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Callable, Iterable, Iterator
+from typing import Annotated
 
 import cv2
 import numpy as np
@@ -62,10 +63,14 @@ class VideoConfig:
     device: str | None = None
     """cpu | cuda | cuda:N (default: the device the run trained on)."""
 
-    def validate(self) -> "VideoConfig":
+    def validate(self) -> VideoConfig:
         if not 1 <= len(self.runs) <= 2:
             raise UserError(f"flipviz video takes one run folder, or two to compare; got {len(self.runs)}")
-        for name, v, lo, hi in (("frames", self.frames, 2, 10_000), ("res", self.res, 16, 2048), ("fps", self.fps, 1, 120)):
+        for name, v, lo, hi in (
+            ("frames", self.frames, 2, 10_000),
+            ("res", self.res, 16, 2048),
+            ("fps", self.fps, 1, 120),
+        ):
             if not lo <= v <= hi:
                 raise UserError(f"--{name} must be in {lo}..{hi}, got {v}")
         return self
@@ -91,7 +96,7 @@ class GroundTruth:
         self._scene, self._loader, self._by_res = scene, loader, {}
 
     @classmethod
-    def of_run(cls, trainer) -> "GroundTruth":
+    def of_run(cls, trainer) -> GroundTruth:
         """A run's ground truth, its dataset reloaded at another width when a camera asks for one."""
         return cls(trainer.scene, lambda width: load_scene(trainer.cfg.scene, trainer.cfg.data, width))
 
@@ -155,9 +160,11 @@ def compose_frame(rows: list[tuple[str, dict]], gt: np.ndarray | None) -> np.nda
 
 
 def render_frames(
-    renders: list[tuple[str, Render]], cameras: list[Camera], ground_truth: Callable[[Camera], np.ndarray | None],
+    renders: list[tuple[str, Render]],
+    cameras: list[Camera],
+    ground_truth: Callable[[Camera], np.ndarray | None],
     progress: bool = True,
-) -> Iterator[np.ndarray]:  # fmt: skip
+) -> Iterator[np.ndarray]:
     """One composed frame per camera (render each run, the ground truth where known), as rendered."""
     from tqdm import tqdm
 
@@ -174,8 +181,9 @@ def write_mp4(path: Path, frames: Iterable[np.ndarray], fps: int) -> Path:
 
     with cannot_write(path, "the video"), atomic_path(path) as tmp:
         try:
-            with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8, macro_block_size=16,
-                                    ffmpeg_log_level="quiet") as w:  # fmt: skip
+            with imageio.get_writer(
+                tmp, format="FFMPEG", fps=fps, codec="libx264", quality=8, macro_block_size=16, ffmpeg_log_level="quiet"
+            ) as w:
                 n, shape = 0, None
                 for f in frames:
                     w.append_data(f)
@@ -245,13 +253,17 @@ def make_video(cfg: VideoConfig) -> tuple[Path, Path | None]:
     runs = [open_run(r, cfg.device) for r in cfg.runs]
     a = runs[0]
     if len(runs) == 2 and runs[1].scene.name != a.scene.name:
-        raise UserError(f"the runs show different scenes ({a.scene.name}, {runs[1].scene.name}); compare runs of one scene")
+        raise UserError(
+            f"the runs show different scenes ({a.scene.name}, {runs[1].scene.name}); compare runs of one scene"
+        )
     cameras = path_cameras(a.setup_event, cfg.path, cfg.frames, cfg.res)
     gt = GroundTruth.of_run(a)
     labels = [f"{METHOD_LABELS[r.cfg.method]} ({scene_label(r.cfg)}, {r.step} steps)" for r in runs]
     small = GifFrames(step=2 if len(cameras) > 40 else 1)
     name = "keyframes" if cfg.path not in ("orbit", "unobserved") else cfg.path
-    with contextlib.closing(render_frames([(label, r.render) for label, r in zip(labels, runs)], cameras, gt)) as frames:
+    with contextlib.closing(
+        render_frames([(label, r.render) for label, r in zip(labels, runs)], cameras, gt)
+    ) as frames:
         out = write_mp4(cfg.out or a.run_dir / f"video_{name}.mp4", small.keep(frames) if cfg.gif else frames, cfg.fps)
     gif = small.write(cfg.gif, cfg.fps) if cfg.gif is not None else None
     return out, gif

@@ -72,8 +72,12 @@ class OneLineErrors(logging.Filter):
 
 for _name in ("websockets.server", "asyncio"):
     logging.getLogger(_name).addFilter(OneLineErrors())
-warnings.filterwarnings("ignore", message=r"\[viser\] .* does not match annotation")  # a client's value of the wrong type
-warnings.filterwarnings("ignore", message=r"Queued a \w+ on a closed connection")  # a render for a client that just left
+warnings.filterwarnings(
+    "ignore", message=r"\[viser\] .* does not match annotation"
+)  # a client's value of the wrong type
+warnings.filterwarnings(
+    "ignore", message=r"Queued a \w+ on a closed connection"
+)  # a render for a client that just left
 
 
 @dataclass
@@ -189,10 +193,16 @@ class App(Observer):
         self._ui_thread = threading.Thread(target=self._ui_loop, name="flipviz-ui", daemon=True)
         self._build_gui()
         self.views = ViewportRenderer(
-            self.worker, self.render, lambda: self.status == "running", preview_shown=lambda: self.preview.on,
-            depth_range=self._depth_range, max_width=cfg.view_width, on_unsnap=self._on_unsnap,
-            show_preview=self.preview.set_visible, compare=self.compare.compose,
-        )  # fmt: skip
+            self.worker,
+            self.render,
+            lambda: self.status == "running",
+            preview_shown=lambda: self.preview.on,
+            depth_range=self._depth_range,
+            max_width=cfg.view_width,
+            on_unsnap=self._on_unsnap,
+            show_preview=self.preview.set_visible,
+            compare=self.compare.compose,
+        )
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
 
@@ -215,10 +225,17 @@ class App(Observer):
             self.mirror = MirrorLesson(self.server, self.worker, self, self.scene, self.restart_with_plane)
         with tabs.add_tab("Compare", viser.Icon.LAYOUT_COLUMNS):
             self.compare = ComparePanel(
-                self.server, self, lambda: train_config(self.cfg), self._run_dir, self._scene, self._run_folders,
-                self.browse_roots, on_change=lambda: self.views.request_all(), on_shown=self._compare_shown,
+                self.server,
+                self,
+                lambda: train_config(self.cfg),
+                self._run_dir,
+                self._scene,
+                self._run_folders,
+                self.browse_roots,
+                on_change=lambda: self.views.request_all(),
+                on_shown=self._compare_shown,
                 previous=self._previous_run,
-            )  # fmt: skip
+            )
         with tabs.add_tab("Show", viser.Icon.EYE):
             gui.add_image(palette.legend_image(), label="Colours", format="png")
             with gui.add_folder("3D preview"):
@@ -226,7 +243,9 @@ class App(Observer):
                     self.server, self.worker, self._bake, lambda: self.status == "running", lambda: self.step
                 )
             with gui.add_folder("Scene"):
-                self.group_boxes = {g: gui.add_checkbox(label, self.scene.visible[g]) for g, (label, _) in GROUPS.items()}
+                self.group_boxes = {
+                    g: gui.add_checkbox(label, self.scene.visible[g]) for g, (label, _) in GROUPS.items()
+                }
                 for g, cb in self.group_boxes.items():
                     cb.on_update(lambda ev, g=g: self.scene.set_visible(g, ev.target.value))
         self._hidden_for_compare: list[viser.GuiCheckboxHandle] = []
@@ -236,8 +255,10 @@ class App(Observer):
         """A click in a browser's 3D view probes the pixel under it, when that browser is at a snapped view."""
         view = self.views.clients.get(ev.client_id)
         snapped = view.snapped if view is not None else None
-        self.probe.click(snapped if snapped is not None and self.views.at(view, snapped.camera) else None,
-                         np.asarray(ev.ray_direction))  # fmt: skip
+        self.probe.click(
+            snapped if snapped is not None and self.views.at(view, snapped.camera) else None,
+            np.asarray(ev.ray_direction),
+        )
 
     def _on_unsnap(self) -> None:
         """A browser's camera left its snapped view: what was hidden comes back, the Views panel's images go."""
@@ -324,7 +345,7 @@ class App(Observer):
         return trainer.point_cloud() if trainer is not None else None
 
     # ---- training control -------------------------------------------------------------------
-    def start(self) -> "App":
+    def start(self) -> App:
         self._ui_thread.start()
         with self._run_lock:
             self._start_run(self.cfg)
@@ -333,7 +354,9 @@ class App(Observer):
     def _start_run(self, cfg: AppConfig) -> None:
         self.cfg = cfg
         self.status, self.message, self.step = "starting", "", 0
-        self._thread = threading.Thread(target=self._train_thread, args=(cfg, self._gen), name="flipviz-train", daemon=True)
+        self._thread = threading.Thread(
+            target=self._train_thread, args=(cfg, self._gen), name="flipviz-train", daemon=True
+        )
         self._thread.start()
 
     def _train_thread(self, cfg: AppConfig, gen: int) -> None:
@@ -403,7 +426,9 @@ class App(Observer):
             return
         scene = choice.scene if choice.scene is not None else self.cfg.scene
         cfg = with_preset(self.cfg, choice.preset)
-        self.restart(replace(cfg, scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps))
+        self.restart(
+            replace(cfg, scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps)
+        )
 
     def restart_with_plane(self, plane: Plane) -> None:
         """Retrain with `plane` as the mirror plane (with Flip+U unless a Flip method is running)."""
@@ -434,7 +459,13 @@ class App(Observer):
             self.probe.clear()
             self.compare.clear()
             with self._ev_lock:
-                self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = None, None, None, None, None
+                self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = (
+                    None,
+                    None,
+                    None,
+                    None,
+                    None,
+                )
                 self._curves = None
             out = None if self._base_out is None else next_free(f"{self._base_out}-restart{self.restarts}")
             self._start_run(replace(cfg, out=out, resume=None, rrd=None))
@@ -548,14 +579,18 @@ class App(Observer):
         self.compare.refresh()
         self.views.unsnap_all()
         cfg = self.cfg
-        self.train.show_run(cfg.scene, str(cfg.data) if cfg.data else None, cfg.method, cfg.config, cfg.steps, cfg.preset)
+        self.train.show_run(
+            cfg.scene, str(cfg.data) if cfg.data else None, cfg.method, cfg.config, cfg.steps, cfg.preset
+        )
         self.views.request_all()
         self.preview.request(delay=1.0)
 
     def _update_progress(self, ev: StepEvent | None) -> None:
         trainer = self.trainer
         run_dir = str(trainer.run_dir) if trainer is not None and self.setup is not None else None
-        self.train.show_progress(self.setup, self.status, ev, self._test_psnr, self.worker.share(), self.message, run_dir)
+        self.train.show_progress(
+            self.setup, self.status, ev, self._test_psnr, self.worker.share(), self.message, run_dir
+        )
 
 
 def run_app(cfg: AppConfig) -> None:

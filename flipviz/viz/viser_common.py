@@ -55,6 +55,7 @@ def plane_from_pose(wxyz, position) -> Plane:
 
 def plane_to_arg(plane: Plane) -> str:
     """The `--mirror-plane` string 'px,py,pz;nx,ny,nz' of a plane."""
+
     def fmt(v: np.ndarray) -> str:
         return ",".join(f"{round(float(x), 5) + 0.0:g}" for x in v)  # + 0.0 turns -0 into 0
 

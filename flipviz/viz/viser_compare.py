@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -114,42 +114,73 @@ class ComparePanel:
     """GUI of the Compare tab, and the compositor the browsers' views call while it is on."""
 
     def __init__(
-        self, server: viser.ViserServer, run: RunView, run_config: Callable[[], TrainConfig],
-        run_dir: Callable[[], Path | None], scene: Callable[[], SceneData | None], search: Callable[[], list[Path]],
-        roots: Callable[[], list[Path]], on_change: Callable[[], None], on_shown: Callable[[bool], None] = lambda on: None,
+        self,
+        server: viser.ViserServer,
+        run: RunView,
+        run_config: Callable[[], TrainConfig],
+        run_dir: Callable[[], Path | None],
+        scene: Callable[[], SceneData | None],
+        search: Callable[[], list[Path]],
+        roots: Callable[[], list[Path]],
+        on_change: Callable[[], None],
+        on_shown: Callable[[bool], None] = lambda on: None,
         previous: Callable[[], Path | None] = lambda: None,
-    ) -> None:  # fmt: skip
+    ) -> None:
         gui = server.gui
         self.server, self.run, self.run_config, self.run_dir, self.scene = server, run, run_config, run_dir, scene
-        self.search, self.roots, self.on_change, self.on_shown, self.previous = search, roots, on_change, on_shown, previous
+        self.search, self.roots, self.on_change, self.on_shown, self.previous = (
+            search,
+            roots,
+            on_change,
+            on_shown,
+            previous,
+        )
         self.shown = False  # whether the views show the comparison (a run B and a mode other than off)
         self.b: RunB | None = None
         self._note = NO_B  # what the tab says while there is no B (loading, or why it failed)
         self._lock = threading.Lock()
         self.scores: dict[str, tuple[float, float]] = {}  # snapped view name -> (PSNR A, PSNR B)
         self._scored_at: dict[str, tuple[int, int]] = {}  # snapped view name -> (A's step, B's step) of its scores
-        gui.add_markdown("Compare this run (**A**) with a second run (**B**) from your camera: split, side by side, "
-                         "or their difference.")  # fmt: skip
+        gui.add_markdown(
+            "Compare this run (**A**) with a second run (**B**) from your camera: split, side by side, "
+            "or their difference."
+        )
         with gui.add_folder("Run B"):
-            self.previous_btn = gui.add_button("Compare with the previous run", icon=viser.Icon.HISTORY,
-                                               hint="The run this app trained before the current one (its checkpoint is kept)")  # fmt: skip
-            self.runs_dd = gui.add_dropdown("Finished run", (NONE,), hint="Run folders with a checkpoint (runs/, this app's runs)")
+            self.previous_btn = gui.add_button(
+                "Compare with the previous run",
+                icon=viser.Icon.HISTORY,
+                hint="The run this app trained before the current one (its checkpoint is kept)",
+            )
+            self.runs_dd = gui.add_dropdown(
+                "Finished run", (NONE,), hint="Run folders with a checkpoint (runs/, this app's runs)"
+            )
             self.refresh_btn = gui.add_button("Find runs", icon=viser.Icon.REFRESH)
-            self.path_txt = gui.add_text("Or a folder", "", hint="A run folder with checkpoint.pt, under the app's browse roots")
+            self.path_txt = gui.add_text(
+                "Or a folder", "", hint="A run folder with checkpoint.pt, under the app's browse roots"
+            )
             self.load_btn = gui.add_button("Load run B", icon=viser.Icon.FOLDER_OPEN)
-            self.method_dd = guard_choice(gui.add_dropdown("B method", METHODS, initial_value="bl", hint="Train B with this method"), METHODS)
+            self.method_dd = guard_choice(
+                gui.add_dropdown("B method", METHODS, initial_value="bl", hint="Train B with this method"), METHODS
+            )
             self.setting_dd = guard_choice(gui.add_dropdown("B setting", SETTINGS, hint=SETTING_HINT), SETTINGS)
-            self.train_btn = gui.add_button("Train B next to this run", icon=viser.Icon.PLAYER_PLAY,
-                                            hint="Same scene, views and steps; both share the CPU")  # fmt: skip
+            self.train_btn = gui.add_button(
+                "Train B next to this run",
+                icon=viser.Icon.PLAYER_PLAY,
+                hint="Same scene, views and steps; both share the CPU",
+            )
         self.mode_dd = guard_choice(gui.add_dropdown("Show", MODES, initial_value="off"), MODES)
-        self.divider = guard_number(gui.add_slider("Divider", 0.0, 1.0, 0.01, 0.5, hint="Split: where A ends and B begins"), 0.0, 1.0)
+        self.divider = guard_number(
+            gui.add_slider("Divider", 0.0, 1.0, 0.01, 0.5, hint="Split: where A ends and B begins"), 0.0, 1.0
+        )
         self.status_md = gui.add_markdown(NO_B)
         with gui.add_folder("Camera path"):
             self.keys_md = gui.add_markdown("No keyframes. Move your camera and add some.")
             self.add_key_btn = gui.add_button("Add keyframe", icon=viser.Icon.CAMERA_PLUS)
             self.clear_keys_btn = gui.add_button("Clear keyframes", icon=viser.Icon.TRASH)
             self.frames_num = guard_number(gui.add_number("Frames", 60, min=2, max=MAX_FRAMES, step=1), 2, MAX_FRAMES)
-            self.video_btn = gui.add_button("Render video", icon=viser.Icon.MOVIE, hint="A, and B when loaded; MP4 in A's folder")
+            self.video_btn = gui.add_button(
+                "Render video", icon=viser.Icon.MOVIE, hint="A, and B when loaded; MP4 in A's folder"
+            )
             self.video_md = gui.add_markdown("")
         self.keyframes: list[Camera] = []
         self._key_handles: list = []
@@ -219,7 +250,9 @@ class ComparePanel:
 
         def build() -> None:
             try:
-                trainer = Trainer(replace(cfg, method=method, out=out, resume=None, no_rrd=True, rrd=None, rerun_serve=False))
+                trainer = Trainer(
+                    replace(cfg, method=method, out=out, resume=None, no_rrd=True, rrd=None, rerun_serve=False)
+                )
             except Exception as e:
                 self._say(f"**Cannot train run B:** {str(e).splitlines()[0]}")
                 return
@@ -269,7 +302,9 @@ class ComparePanel:
                 self.status_md.content = self._note
             return
         setup = self.run.setup
-        lines = [f"**B:** {b.name}, step {b.trainer.step}" + (" (training)" if b.training and b.thread.is_alive() else "")]
+        lines = [
+            f"**B:** {b.name}, step {b.trainer.step}" + (" (training)" if b.training and b.thread.is_alive() else "")
+        ]
         if setup is not None and b.trainer.scene.name != setup.scene:
             lines.append(f"B shows **{b.trainer.scene.name}**, A shows **{setup.scene}**: the views differ.")
         for name, (pa, pb) in list(self.scores.items())[-3:]:
@@ -301,7 +336,11 @@ class ComparePanel:
             return img, None, None
         out_b = b.render(cam)
         if mode == "difference":
-            return label(error_map(out_a["rgb"], out_b["rgb"]), "|A - B|"), (*palette.ERROR_RANGE, "|A - B|, mean over RGB"), None
+            return (
+                label(error_map(out_a["rgb"], out_b["rgb"]), "|A - B|"),
+                (*palette.ERROR_RANGE, "|A - B|, mean over RGB"),
+                None,
+            )
         x = int(round(bounded(self.divider.value, 0.0, 1.0, 0.5) * cam.width))
         img = split_image(to_uint8(out_a["rgb"]), to_uint8(out_b["rgb"]), x)
         depth = split_image(view_depth(cam, out_a), view_depth(cam, out_b), x, line=False)
@@ -326,7 +365,9 @@ class ComparePanel:
         if client is None:
             return
         cam = client.camera
-        self.add_keyframe(camera_from_viser(cam.wxyz, cam.position, float(cam.fov), 320, max(8, round(320 / max(cam.aspect, 0.1)))))
+        self.add_keyframe(
+            camera_from_viser(cam.wxyz, cam.position, float(cam.fov), 320, max(8, round(320 / max(cam.aspect, 0.1))))
+        )
 
     def add_keyframe(self, cam: Camera) -> None:
         i = len(self.keyframes)
@@ -335,11 +376,21 @@ class ComparePanel:
             return
         self.keyframes.append(cam.with_pose(cam.c2w, name=f"key_{i:03d}"))
         wxyz, pos = to_viser_pose(cam.c2w)
-        self._key_handles.append(self.server.scene.add_camera_frustum(
-            f"/keyframes/{i:03d}", fov=cam.fov_y, aspect=cam.width / cam.height, scale=0.15,
-            color=palette.CAMERA["novel"], wxyz=wxyz, position=pos, visible=False,
-        ))  # fmt: skip (shown once no browser's camera sits on it: hide_keyframes_at)
-        self.keys_md.content = f"**{len(self.keyframes)}** keyframe(s)" + ("" if len(self.keyframes) > 1 else ": add one more")
+        self._key_handles.append(
+            self.server.scene.add_camera_frustum(
+                f"/keyframes/{i:03d}",
+                fov=cam.fov_y,
+                aspect=cam.width / cam.height,
+                scale=0.15,
+                color=palette.CAMERA["novel"],
+                wxyz=wxyz,
+                position=pos,
+                visible=False,
+            )
+        )  # shown once no browser's camera sits on it: hide_keyframes_at
+        self.keys_md.content = f"**{len(self.keyframes)}** keyframe(s)" + (
+            "" if len(self.keyframes) > 1 else ": add one more"
+        )
 
     def hide_keyframes_at(self, positions: list[np.ndarray], radius: float) -> None:
         """A keyframe's frustum where a browser's camera is would frame that whole view in magenta: it is
@@ -361,7 +412,9 @@ class ComparePanel:
         if len(self.keyframes) < 2 or a_dir is None or setup is None:
             self.video_md.content = "_Add two keyframes or more (and wait for the run to start)._"
             return None
-        thread = threading.Thread(target=self._render_video, args=(Path(a_dir), setup, list(self.keyframes), res), daemon=True)
+        thread = threading.Thread(
+            target=self._render_video, args=(Path(a_dir), setup, list(self.keyframes), res), daemon=True
+        )
         thread.start()
         return thread
 
@@ -371,7 +424,10 @@ class ComparePanel:
 
         try:
             write_keyframes(folder / KEYFRAMES_FILE, keys)
-            cams = [c.resized(res) for c in keyframe_path(setup, keys, int(bounded(self.frames_num.value, 2, MAX_FRAMES, 60)))]
+            cams = [
+                c.resized(res)
+                for c in keyframe_path(setup, keys, int(bounded(self.frames_num.value, 2, MAX_FRAMES, 60)))
+            ]
             renders = [(f"A: {run_label(self.run_config())}", lambda c: self.run.render(c))]
             if self.b is not None:
                 b = self.b
@@ -387,7 +443,9 @@ class ComparePanel:
 
             scene = self.scene()
             gt = GroundTruth(scene) if scene is not None else (lambda c: None)
-            path = write_mp4(folder / "video_keyframes.mp4", counted(render_frames(renders, cams, gt, progress=False)), 24)
+            path = write_mp4(
+                folder / "video_keyframes.mp4", counted(render_frames(renders, cams, gt, progress=False)), 24
+            )
             self.video_path = path
             self.video_md.content = f"Wrote `{path}` ({len(cams)} frames); keyframes in `{folder / KEYFRAMES_FILE}`."
         except Exception as e:

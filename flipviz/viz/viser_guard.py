@@ -11,7 +11,8 @@ clamp at the point of use (`bounded`), so no window between the update and the g
 from __future__ import annotations
 
 import math
-from typing import Sequence, TypeVar
+from collections.abc import Sequence
+from typing import TypeVar
 
 H = TypeVar("H")
 

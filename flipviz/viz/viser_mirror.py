@@ -13,19 +13,19 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import viser
 
 from flipviz.data.cameras import WORLD_UP, Camera, azimuth_deg, horizontal_basis
 from flipviz.data.dataset import Plane
+from flipviz.data.images import to_uint8
 from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
 from flipviz.geometry.sphere import Sphere
 from flipviz.geometry.symmetry import CONFIDENT, PlaneEstimate, plane_error
-from flipviz.training.events import ImagesEvent, SetupEvent
-from flipviz.data.images import to_uint8
 from flipviz.training.evaluate import image_psnr
+from flipviz.training.events import ImagesEvent, SetupEvent
 from flipviz.viz import palette
 from flipviz.viz.run_curves import RunCurves
 from flipviz.viz.run_view import RunView
@@ -45,8 +45,9 @@ LESSON = """**What the mirror assumes.** Just Flip assumes the object is *mirror
 plane. Each input image is flipped left-right and given a pose: its camera reflected through the
 plane (the paper: the camera centre reflected through a plane through the centre of the sphere
 fitted to the cameras, put back on the sphere and aimed at its centre; the same on a ring around
-the object). If the object really is symmetric, a camera there would see exactly the flipped image, so the unobserved side gets training views for free; bundle adjustment
-corrects the small pose errors and the learned variance beta^2 down-weights pixels that still disagree.
+the object). If the object really is symmetric, a camera there would see exactly the flipped image,
+so the unobserved side gets training views for free; bundle adjustment corrects the small pose
+errors and the learned variance beta^2 down-weights pixels that still disagree.
 
 Where the object is **not** symmetric (a mug's handle, a one-sided lamp), the flipped views
 contradict the real ones. Show the plane gizmo and drag it, or type a plane, to see the mirrored
@@ -62,8 +63,10 @@ ESTIMATE_HELP = (
 )
 
 
-POSE_TITLES = {True: "Mirrored cameras: rotation error (deg) vs their exact reflections",
-               False: "Mirrored cameras: rotation BA applied (deg)"}  # fmt: skip (no true plane: what BA moved)
+POSE_TITLES = {
+    True: "Mirrored cameras: rotation error (deg) vs their exact reflections",
+    False: "Mirrored cameras: rotation BA applied (deg)",
+}  # no true plane: what BA moved
 PLANE_TITLES = {True: "Mirror plane: error vs the true plane", False: "Mirror plane: change from its start"}
 AGREE_TITLE = "Mirrors vs inputs: squared error ratio on the object (dropped above the limit)"
 
@@ -101,32 +104,55 @@ class MirrorLesson:
     """The Mirror tab: a plane gizmo, live preview frustums, consistency scores, restart with a plane."""
 
     def __init__(
-        self, server: viser.ViserServer, worker: RenderWorker, run: RunView, scene: RunScene,
+        self,
+        server: viser.ViserServer,
+        worker: RenderWorker,
+        run: RunView,
+        scene: RunScene,
         on_restart: Callable[[Plane], None],
-    ) -> None:  # fmt: skip
+    ) -> None:
         self.server, self.worker, self.run, self.scene, self.on_restart = server, worker, run, scene, on_restart
         gui = server.gui
         gui.add_markdown(LESSON)
         self.plane_text = gui.add_markdown("_No run yet._")
         self.refine_text = gui.add_markdown("")  # the plane as training refines it (--refine-plane)
         self.gate_text = gui.add_markdown("")  # the agreement gate's verdict (training/flip.py: Agreement)
-        self.show_gizmo = gui.add_checkbox("Show plane gizmo", False, hint="Drag its arrows and rings to move the plane")
+        self.show_gizmo = gui.add_checkbox(
+            "Show plane gizmo", False, hint="Drag its arrows and rings to move the plane"
+        )
         self.show_preview = gui.add_checkbox("Show plane preview", True)
         self.show_plane = gui.add_checkbox("Show mirror plane", True, hint="The translucent square of the plane")
         with gui.add_folder("Type the plane"):
-            self.azimuth = guard_number(gui.add_slider("Vertical plane azimuth", -180.0, 180.0, 1.0, 0.0,
-                                          hint="Normal (cos a, sin a, 0), through the sphere centre"), -180.0, 180.0)  # fmt: skip
+            self.azimuth = guard_number(
+                gui.add_slider(
+                    "Vertical plane azimuth",
+                    -180.0,
+                    180.0,
+                    1.0,
+                    0.0,
+                    hint="Normal (cos a, sin a, 0), through the sphere centre",
+                ),
+                -180.0,
+                180.0,
+            )
             self.point_in = guard_vector(gui.add_vector3("Plane point", (0.0, 0.0, 0.0), step=0.01), PLANE_LIMIT)
             self.normal_in = guard_vector(gui.add_vector3("Plane normal", (1.0, 0.0, 0.0), step=0.01), PLANE_LIMIT)
             self.apply_btn = gui.add_button("Apply typed plane", icon=viser.Icon.CHECK)
-        self.frustum_shows = guard_choice(gui.add_dropdown(
-            "Mirrored frustums show", FRUSTUM_IMAGES, initial_value=FRUSTUM_IMAGES[0],
-            hint="disagreement: |flipped image - the model seen from the mirrored camera|",
-        ), FRUSTUM_IMAGES)  # fmt: skip
+        self.frustum_shows = guard_choice(
+            gui.add_dropdown(
+                "Mirrored frustums show",
+                FRUSTUM_IMAGES,
+                initial_value=FRUSTUM_IMAGES[0],
+                hint="disagreement: |flipped image - the model seen from the mirrored camera|",
+            ),
+            FRUSTUM_IMAGES,
+        )
         self.anyway_btn = gui.add_button(
-            "Show the mirrors anyway (not trained on)", icon=viser.Icon.EYE, visible=False,
+            "Show the mirrors anyway (not trained on)",
+            icon=viser.Icon.EYE,
+            visible=False,
             hint="The doubted plane's mirrored cameras, scored and showing where their flipped images disagree",
-        )  # fmt: skip (shown when an unconfident estimate dropped the mirrors)
+        )  # shown when an unconfident estimate dropped the mirrors
         self.score_btn = gui.add_button("Score mirrors", icon=viser.Icon.RULER, hint="Render each mirrored view now")
         self.reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         self.restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
@@ -138,8 +164,11 @@ class MirrorLesson:
         self._plotted: tuple = ((), (), ())  # (mirror, plane, agreement) data keys of the plots shown
         with gui.add_folder("Estimated plane") as self.est_folder:
             self.est_text = gui.add_markdown(ESTIMATE_HELP)
-            self.est_btn = gui.add_button("Estimate plane", icon=viser.Icon.SEARCH,
-                                          hint="A short B/L fit of the inputs, then the reflection that maps it onto itself")  # fmt: skip
+            self.est_btn = gui.add_button(
+                "Estimate plane",
+                icon=viser.Icon.SEARCH,
+                hint="A short B/L fit of the inputs, then the reflection that maps it onto itself",
+            )
             self.use_est_btn = gui.add_button("Use estimated plane", icon=viser.Icon.CHECK, disabled=True)
         self.est_plot: viser.GuiImageHandle | None = None
         self.estimate: PlaneEstimate | None = None
@@ -199,26 +228,44 @@ class MirrorLesson:
                     self.no_mirror_note = "this is the plane a Flip run with these settings starts from."
                 except Exception:  # auto: only an estimate knows it
                     plane = mirror_plane("opposite", self.inputs, self.sphere)
-                    self.no_mirror_note = (f"a Flip run would estimate its plane (`--mirror-plane {preset}`: *Estimate "
-                                           "plane* below); this one only faces away from the inputs (`opposite`).")  # fmt: skip
+                    self.no_mirror_note = (
+                        f"a Flip run would estimate its plane (`--mirror-plane {preset}`: *Estimate "
+                        "plane* below); this one only faces away from the inputs (`opposite`)."
+                    )
             self.train_plane = self.start_plane = plane
             self.true_plane, self.trail = setup.true_plane, []
             self.refining = setup.plane is not None and bool(setup.settings.get("refine_plane"))
             self.refine_text.content = (
-                "_Training refines this plane: it moves with the mirrored rays' loss (orange trail)._" if self.refining else ""
+                "_Training refines this plane: it moves with the mirrored rays' loss (orange trail)._"
+                if self.refining
+                else ""
             )
             self.scores = {}
             r = float(setup.sphere_radius)
             scene = self.server.scene
             self.gizmo = scene.add_transform_controls(
-                "/plane", scale=0.6 * r, line_width=6.0, wxyz=plane_wxyz(plane), position=plane.point, opacity=0.9,
+                "/plane",
+                scale=0.6 * r,
+                line_width=6.0,
+                wxyz=plane_wxyz(plane),
+                position=plane.point,
+                opacity=0.9,
                 visible=bool(self.show_gizmo.value),
-            )  # fmt: skip
+            )
             v, f = plane_quad(0.55 * r)
             self.quad = scene.add_mesh_simple(
-                "/mirror_plane", v, f, color=palette.MIRROR_PLANE, opacity=0.18, side="double", cast_shadow=False,
-                receive_shadow=False, wxyz=plane_wxyz(plane), position=plane.point, visible=bool(self.show_plane.value) and not self.snapped,
-            )  # fmt: skip
+                "/mirror_plane",
+                v,
+                f,
+                color=palette.MIRROR_PLANE,
+                opacity=0.18,
+                side="double",
+                cast_shadow=False,
+                receive_shadow=False,
+                wxyz=plane_wxyz(plane),
+                position=plane.point,
+                visible=bool(self.show_plane.value) and not self.snapped,
+            )
             self.preview, self.preview_frame = [], None
             self.trains_mirrors = setup.plane is not None
             self.dropped = setup.plane is None and setup.plane_estimate is not None  # a Flip run, plane not confident
@@ -248,24 +295,43 @@ class MirrorLesson:
             self.pose_plot = self.server.gui.add_uplot(
                 (np.zeros(1), *np.zeros((len(names), 1))),
                 ({"label": "step"}, *({"label": n, "stroke": c, "width": 1.5} for n, c in zip(names, colors))),
-                title=POSE_TITLES[False], scales={"x": {"time": False}}, aspect=1.6,
-                legend={"show": len(names) <= 8}, visible=False,
-            )  # fmt: skip
+                title=POSE_TITLES[False],
+                scales={"x": {"time": False}},
+                aspect=1.6,
+                legend={"show": len(names) <= 8},
+                visible=False,
+            )
             if self.refining:
                 self.plane_plot = self.server.gui.add_uplot(
                     (np.zeros(1), np.zeros(1), np.zeros(1)),
-                    ({"label": "step"}, {"label": "angle (deg)", "stroke": palette.hex_color(palette.MIRROR_PLANE), "width": 2},
-                     {"label": "offset (units)", "stroke": palette.hex_color(palette.TRUE_PLANE), "width": 2, "scale": "off"}),
-                    title=PLANE_TITLES[False], scales={"x": {"time": False}, "off": {"auto": True}}, aspect=1.6,
-                    axes=({}, {}, {"scale": "off", "side": 1, "grid": {"show": False}}), visible=False,
-                )  # fmt: skip
+                    (
+                        {"label": "step"},
+                        {"label": "angle (deg)", "stroke": palette.hex_color(palette.MIRROR_PLANE), "width": 2},
+                        {
+                            "label": "offset (units)",
+                            "stroke": palette.hex_color(palette.TRUE_PLANE),
+                            "width": 2,
+                            "scale": "off",
+                        },
+                    ),
+                    title=PLANE_TITLES[False],
+                    scales={"x": {"time": False}, "off": {"auto": True}},
+                    aspect=1.6,
+                    axes=({}, {}, {"scale": "off", "side": 1, "grid": {"show": False}}),
+                    visible=False,
+                )
             self.agree_plot = self.server.gui.add_uplot(
                 (np.zeros(1), np.zeros(1), np.zeros(1)),
-                ({"label": "step"}, {"label": "mirrored / input", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
-                 {"label": "limit", "stroke": "#888888", "width": 1, "dash": [6, 4]}),
-                title=AGREE_TITLE, scales={"x": {"time": False}, "y": {"auto": False, "range": [0.0, 1.0]}}, aspect=1.6,
+                (
+                    {"label": "step"},
+                    {"label": "mirrored / input", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
+                    {"label": "limit", "stroke": "#888888", "width": 1, "dash": [6, 4]},
+                ),
+                title=AGREE_TITLE,
+                scales={"x": {"time": False}, "y": {"auto": False, "range": [0.0, 1.0]}},
+                aspect=1.6,
                 visible=False,
-            )  # fmt: skip
+            )
 
     def set_curves(self, curves: RunCurves) -> None:
         """The run's curves (RunCurves' mirror, plane and agreement data); each sent only when it has a new
@@ -281,11 +347,18 @@ class MirrorLesson:
                 f"**Mirrors dropped at step {curves.dropped_at}:** on the object their squared error was "
                 f"{curves.disagreement[-1]:.1f}x the inputs' (limit {curves.limit:g}), so they contradict what the "
                 "inputs saw. "
-                + ("A fresh field trains on the inputs alone, as B/L." if curves.restarted else "Training goes on with the inputs alone.")
-            )  # fmt: skip
+                + (
+                    "A fresh field trains on the inputs alone, as B/L."
+                    if curves.restarted
+                    else "Training goes on with the inputs alone."
+                )
+            )
         if self.agree_plot is not None and len(agree) == 3 and len(agree[0]) >= 2:
             top = float(np.nanmax([*agree[1], curves.limit if np.isfinite(curves.limit) else 0.0]))
-            self.agree_plot.scales = {"x": {"time": False}, "y": {"auto": False, "range": [0.0, float(np.ceil(top * 1.1 + 0.01))]}}
+            self.agree_plot.scales = {
+                "x": {"time": False},
+                "y": {"auto": False, "range": [0.0, float(np.ceil(top * 1.1 + 0.01))]},
+            }
         for plot, data, title in (
             (self.pose_plot, poses, POSE_TITLES[curves.mirror_vs_truth]),
             (self.plane_plot, plane, PLANE_TITLES[curves.plane_vs_truth]),
@@ -379,14 +452,19 @@ class MirrorLesson:
                 self.plane_text.content = plane_line(plane) + " - the plane training uses now."
             if len(self.trail) > 1:
                 segs = np.stack([np.stack(self.trail[:-1]), np.stack(self.trail[1:])], axis=1)
-                self.server.scene.add_line_segments("/plane_trail", segs, palette.MIRROR_PLANE, thickness=3.0,
-                                                    thickness_units="screen")  # fmt: skip
+                self.server.scene.add_line_segments(
+                    "/plane_trail", segs, palette.MIRROR_PLANE, thickness=3.0, thickness_units="screen"
+                )
             moved_deg, moved_off = plane_error(plane, self.start_plane)
-            text = f"**Refined plane:** turned {moved_deg:.2f}° and moved {moved_off:.3f} from where training started it"
+            text = (
+                f"**Refined plane:** turned {moved_deg:.2f}° and moved {moved_off:.3f} from where training started it"
+            )
             if self.true_plane is not None:
                 err0, err = plane_error(self.start_plane, self.true_plane), plane_error(plane, self.true_plane)
-                text += (f"; off the true plane by **{err[0]:.2f}° / {err[1]:.3f}** "
-                         f"(it started {err0[0]:.2f}° / {err0[1]:.3f} off)")  # fmt: skip
+                text += (
+                    f"; off the true plane by **{err[0]:.2f}° / {err[1]:.3f}** "
+                    f"(it started {err0[0]:.2f}° / {err0[1]:.3f} off)"
+                )
             self.refine_text.content = text + "."
 
     def reset_plane(self) -> None:
@@ -418,10 +496,18 @@ class MirrorLesson:
                     wxyz, pos = to_viser_pose(cam.c2w)
                     self.preview.append(
                         scene.add_camera_frustum(
-                            f"/preview/{k}", fov=cam.fov_y, aspect=cam.width / cam.height, scale=0.07 * r,
-                            color=palette.CAMERA["mirror_init"], image=thumbnail(img) if img is not None else None, wxyz=wxyz,
-                            position=pos, thickness=0.01 * r / 4.0, cast_shadow=False, receive_shadow=False,
-                        )  # fmt: skip
+                            f"/preview/{k}",
+                            fov=cam.fov_y,
+                            aspect=cam.width / cam.height,
+                            scale=0.07 * r,
+                            color=palette.CAMERA["mirror_init"],
+                            image=thumbnail(img) if img is not None else None,
+                            wxyz=wxyz,
+                            position=pos,
+                            thickness=0.01 * r / 4.0,
+                            cast_shadow=False,
+                            receive_shadow=False,
+                        )
                     )
             else:
                 for h, cam in zip(self.preview, cams):
@@ -435,8 +521,10 @@ class MirrorLesson:
                     h.color = palette.CAMERA["mirror_init"]  # not scored for this plane yet
         self._set_preview_visible()
         self._show_typed(plane)
-        same = self.train_plane is not None and np.allclose(plane.point, self.train_plane.point) and np.allclose(
-            plane.normal, self.train_plane.normal
+        same = (
+            self.train_plane is not None
+            and np.allclose(plane.point, self.train_plane.point)
+            and np.allclose(plane.normal, self.train_plane.normal)
         )
         where = plane_line(plane)
         if not self.trains_mirrors and self.dropped:
@@ -445,9 +533,7 @@ class MirrorLesson:
                 "(`--unconfident-plane use` keeps them). *Show the mirrors anyway* draws and scores them."
             )
         elif not self.trains_mirrors:
-            self.plane_text.content = where + (
-                " - this method trains on **no** mirrored view; " + self.no_mirror_note
-            )
+            self.plane_text.content = where + (" - this method trains on **no** mirrored view; " + self.no_mirror_note)
         else:
             trained = " - where training started the plane." if self.refining else " - the training plane."
             self.plane_text.content = where + (trained if same else " - **moved**: restart to train with it.")
@@ -476,8 +562,10 @@ class MirrorLesson:
         setup = self.run.setup
         if setup is not None and setup.plane_estimate is not None and self.estimate is setup.plane_estimate:
             self.show_estimate(self.estimate)  # the same inputs give the same plane: say so, at once
-            self.est_text.content = "_Already estimated when this run started (the same inputs give the same plane):_ " + (
-                self.est_text.content)  # fmt: skip
+            self.est_text.content = (
+                "_Already estimated when this run started (the same inputs give the same plane):_ "
+                + (self.est_text.content)
+            )
             return
         if not self._estimating.acquire(blocking=False):
             return  # one estimate at a time
@@ -487,8 +575,10 @@ class MirrorLesson:
         def tick() -> None:  # the time so far, every second: training shares the CPU, so it may take minutes
             t0 = time.monotonic()
             while not done.is_set():
-                self.est_text.content = (f"_Estimating: a short B/L fit of the inputs, then the plane search... "
-                                         f"{time.monotonic() - t0:.0f} s (10-20 s on an idle CPU)_")  # fmt: skip
+                self.est_text.content = (
+                    f"_Estimating: a short B/L fit of the inputs, then the plane search... "
+                    f"{time.monotonic() - t0:.0f} s (10-20 s on an idle CPU)_"
+                )
                 done.wait(1.0)
 
         def work() -> None:
@@ -526,13 +616,17 @@ class MirrorLesson:
         if self.train_plane is not None:
             deg, off = plane_error(est.plane, self.train_plane)
             lines.append(f"Against the training plane: {deg:.1f} deg, offset {off:.3f}.")
-        lines.append("The chart: the best score of the vertical planes at each normal azimuth (about up); "
-                     "one sharp peak for a symmetric object.")
+        lines.append(
+            "The chart: the best score of the vertical planes at each normal azimuth (about up); "
+            "one sharp peak for a symmetric object."
+        )
         self.est_text.content = " ".join(lines)
         chart = score_chart(est, self.up)
         if self.est_plot is None:
             with self.est_folder:
-                self.est_plot = self.server.gui.add_image(chart, label="Mirror-plane score against azimuth", format="png")
+                self.est_plot = self.server.gui.add_image(
+                    chart, label="Mirror-plane score against azimuth", format="png"
+                )
         else:
             self.est_plot.image = chart
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import viser
@@ -67,9 +67,15 @@ class NovelCameras:
             g = self.server.scene.add_transform_controls(f"/novel/{name}", scale=scale, wxyz=wxyz, position=pos)
             fov, aspect = self._fov_aspect()
             f = self.server.scene.add_camera_frustum(
-                f"/novel/{name}/frustum", fov=fov, aspect=aspect, scale=0.6 * scale, color=palette.CAMERA["novel"],
-                thickness=0.02 * scale, cast_shadow=False, receive_shadow=False,
-            )  # fmt: skip
+                f"/novel/{name}/frustum",
+                fov=fov,
+                aspect=aspect,
+                scale=0.6 * scale,
+                color=palette.CAMERA["novel"],
+                thickness=0.02 * scale,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
             self.gizmos[name], self.frustums[name] = g, f
             self.select.options = tuple(self.gizmos)
             self.select.value = name
@@ -142,9 +148,12 @@ class SnapToView:
     """
 
     def __init__(
-        self, server: viser.ViserServer, worker: RenderWorker, run: RunView,
+        self,
+        server: viser.ViserServer,
+        worker: RenderWorker,
+        run: RunView,
         on_snap: Callable[[viser.ClientHandle, Camera, np.ndarray | None, str], None],
-    ) -> None:  # fmt: skip
+    ) -> None:
         self.worker, self.run, self.on_snap = worker, run, on_snap
         gui = server.gui
         self.select = gui.add_dropdown("View", ("(none)",))
@@ -217,7 +226,12 @@ class SnapToView:
             self.text.content = text
         else:
             self.text.content = f"**{key}** at step {self.run.step} (no ground truth)"
-        for img, shown in ((self.pred, True), (self.beta2, b2 is not None), (self.gt, gt is not None), (self.err, gt is not None)):
+        for img, shown in (
+            (self.pred, True),
+            (self.beta2, b2 is not None),
+            (self.gt, gt is not None),
+            (self.err, gt is not None),
+        ):
             img.visible = shown
 
     def clear(self) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import viser
@@ -31,9 +31,14 @@ MAPPED_FLOOR = 0.6  # the least opacity of a splat coloured by a scale (opacity,
 
 class LivePreview:
     def __init__(
-        self, server: viser.ViserServer, worker: RenderWorker, bake: Callable[[], dict | None],
-        is_training: Callable[[], bool], step: Callable[[], int], period_s: float = 5.0,
-    ) -> None:  # fmt: skip
+        self,
+        server: viser.ViserServer,
+        worker: RenderWorker,
+        bake: Callable[[], dict | None],
+        is_training: Callable[[], bool],
+        step: Callable[[], int],
+        period_s: float = 5.0,
+    ) -> None:
         self.server, self.worker, self.bake_fn, self.is_training, self.step = server, worker, bake, is_training, step
         self.period_s = period_s
         self.baked: dict | None = None
@@ -43,11 +48,19 @@ class LivePreview:
         self._drawn: Splats | None = None  # the last bake as shown
         self._lock = threading.Lock()
         gui = server.gui
-        self.enabled = gui.add_checkbox("Live 3D preview", True, hint="The field as Gaussian splats, drawn by your browser")
+        self.enabled = gui.add_checkbox(
+            "Live 3D preview", True, hint="The field as Gaussian splats, drawn by your browser"
+        )
         self.colour = guard_choice(gui.add_dropdown("Preview colour", COLOURS, initial_value="RGB"), COLOURS)
-        self.style = guard_choice(gui.add_dropdown(
-            "Preview drawn as", STYLES, initial_value="splats", hint="splats: one Gaussian per cell; points: the cells as squares"
-        ), STYLES)  # fmt: skip
+        self.style = guard_choice(
+            gui.add_dropdown(
+                "Preview drawn as",
+                STYLES,
+                initial_value="splats",
+                hint="splats: one Gaussian per cell; points: the cells as squares",
+            ),
+            STYLES,
+        )
         self.colorbar = gui.add_image(np.full((46, 320, 3), 255, np.uint8), label="Preview scale", format="png")
         self.colorbar.visible = False
         self.status = gui.add_markdown("_The first bake comes with the first steps._")
@@ -94,11 +107,19 @@ class LivePreview:
         if which == "beta^2" and "beta2" in baked:
             lo, hi = palette.BETA2_LOG10_RANGE
             c = palette.colormap(np.log10(baked["beta2"]), lo, hi)
-            return cells_to_splats(baked["points"], c, baked["alpha"], cell, MAPPED_FLOOR), (lo, hi, "log10 beta^2 per cell")
+            return cells_to_splats(baked["points"], c, baked["alpha"], cell, MAPPED_FLOOR), (
+                lo,
+                hi,
+                "log10 beta^2 per cell",
+            )
         alpha = baked["alpha"][solid]
         if which == "opacity":
             c = palette.colormap(alpha, 0.0, 1.0)
-            return cells_to_splats(baked["points"][solid], c, alpha, cell, MAPPED_FLOOR), (0.0, 1.0, "opacity of one cell")
+            return cells_to_splats(baked["points"][solid], c, alpha, cell, MAPPED_FLOOR), (
+                0.0,
+                1.0,
+                "opacity of one cell",
+            )
         return solid_splats(baked), None
 
     def set_visible(self, client_id: int, visible: bool) -> None:
@@ -126,12 +147,15 @@ class LivePreview:
         if bar is not None:
             self.colorbar.image = palette.colorbar(*bar)
         if splats is not None:
-            kind, size = (("splats", splats.nbytes) if self.style.value == "splats"
-                          else ("points", len(splats) * POINT_BYTES))  # fmt: skip
+            kind, size = (
+                ("splats", splats.nbytes) if self.style.value == "splats" else ("points", len(splats) * POINT_BYTES)
+            )
             self.status.content = (
                 f"{len(splats)} {kind} at step {baked['step']}, baked in {1000 * self.last_bake_s:.0f} ms, "
-                f"{size / 2**20:.1f} MB per browser" if self.on else "_Preview off._"
-            )  # fmt: skip
+                f"{size / 2**20:.1f} MB per browser"
+                if self.on
+                else "_Preview off._"
+            )
         for cid in list(self.visible):
             self._client_scene(cid, lambda s, cid=cid: self._draw(s, cid))
 
@@ -144,14 +168,23 @@ class LivePreview:
         visible = self.visible.get(client_id, True)
         if self.style.value == "points":
             self.handles[client_id] = scene.add_point_cloud(
-                "/preview3d", drawn.centers, drawn.rgbs, point_size=2.0 * drawn.sigma, point_shape="square",
-                precision="float16", visible=visible,
-            )  # fmt: skip
+                "/preview3d",
+                drawn.centers,
+                drawn.rgbs,
+                point_size=2.0 * drawn.sigma,
+                point_shape="square",
+                precision="float16",
+                visible=visible,
+            )
             return
         self.handles[client_id] = scene.add_gaussian_splats(
-            "/preview3d", drawn.centers, drawn.covariances, drawn.rgbs.astype(np.float32) / 255.0, drawn.opacities[:, None],
+            "/preview3d",
+            drawn.centers,
+            drawn.covariances,
+            drawn.rgbs.astype(np.float32) / 255.0,
+            drawn.opacities[:, None],
             visible=visible,
-        )  # fmt: skip
+        )
 
     def _client_scene(self, client_id: int, fn: Callable[[viser.SceneApi], None]) -> None:
         client = self.server.get_clients().get(client_id)

@@ -51,32 +51,52 @@ class PixelReading:
         def rgb(c: np.ndarray) -> str:
             return "(" + ", ".join(f"{v:.3f}" for v in c) + ")"
 
-        rows = [("render RGB", rgb(self.rgb)), ("ground truth RGB", rgb(self.gt) if self.gt is not None else "unknown"),
-                ("abs error (mean RGB)", f"{self.error:.3f}" if self.error is not None else "-"),
-                ("beta^2", f"{self.beta2:.4f}" if self.beta2 is not None else "- (no beta^2 in this method)"),
-                ("depth", f"{self.depth:.3f}"), ("opacity", f"{self.opacity:.3f}")]  # fmt: skip
-        head = f"**Pixel ({self.row}, {self.col})** of **{self.view}** (row, column), step {self.step}\n\n| | |\n|---|---|\n"
+        rows = [
+            ("render RGB", rgb(self.rgb)),
+            ("ground truth RGB", rgb(self.gt) if self.gt is not None else "unknown"),
+            ("abs error (mean RGB)", f"{self.error:.3f}" if self.error is not None else "-"),
+            ("beta^2", f"{self.beta2:.4f}" if self.beta2 is not None else "- (no beta^2 in this method)"),
+            ("depth", f"{self.depth:.3f}"),
+            ("opacity", f"{self.opacity:.3f}"),
+        ]
+        head = f"**Pixel ({self.row}, {self.col})** of **{self.view}** (row, column), step {self.step}\n\n"
+        head += "| | |\n|---|---|\n"
         return head + "\n".join(f"| {k} | {v} |" for k, v in rows)
 
 
-def read_pixel(out: dict[str, np.ndarray], cam: Camera, reference: np.ndarray | None, row: int, col: int,
-               view: str, step: int) -> PixelReading:  # fmt: skip
+def read_pixel(
+    out: dict[str, np.ndarray], cam: Camera, reference: np.ndarray | None, row: int, col: int, view: str, step: int
+) -> PixelReading:
     """One pixel of a render of `cam` (`out`: rgb, depth, opacity and maybe beta2, at cam's resolution)."""
     _, dirs = cam.rays()
     d = dirs[row * cam.width + col].astype(np.float64)
     depth = float(out["depth"][row, col])
-    gt = np.asarray(reference[row, col], np.float64) if reference is not None and reference.shape[:2] == (cam.height, cam.width) else None
+    gt = (
+        np.asarray(reference[row, col], np.float64)
+        if reference is not None and reference.shape[:2] == (cam.height, cam.width)
+        else None
+    )
     b2 = out.get("beta2")
     return PixelReading(
-        view, row, col, step, np.asarray(out["rgb"][row, col], np.float64), gt, depth, float(out["opacity"][row, col]),
-        float(b2[row, col]) if b2 is not None else None, cam.center + depth * d,
-    )  # fmt: skip
+        view,
+        row,
+        col,
+        step,
+        np.asarray(out["rgb"][row, col], np.float64),
+        gt,
+        depth,
+        float(out["opacity"][row, col]),
+        float(b2[row, col]) if b2 is not None else None,
+        cam.center + depth * d,
+    )
 
 
 class PixelProbe:
     """The probe's panel (in the Views tab) and its marker in the 3D view; shared by all clients."""
 
-    def __init__(self, server: viser.ViserServer, worker: RenderWorker, run: RunView, after: viser.GuiMarkdownHandle) -> None:
+    def __init__(
+        self, server: viser.ViserServer, worker: RenderWorker, run: RunView, after: viser.GuiMarkdownHandle
+    ) -> None:
         self.server, self.worker, self.run = server, worker, run
         self.text = server.gui.add_markdown(HELP, order=after.order + 0.5)  # right under `after`, above the images
         self.reading: PixelReading | None = None
@@ -104,9 +124,13 @@ class PixelProbe:
         toward_camera = cam.center - reading.point
         toward_camera /= max(float(np.linalg.norm(toward_camera)), 1e-9)
         self.server.scene.add_icosphere(  # on the ray, just in front of the surface (not hidden in it)
-            "/probe", radius=r, color=palette.PROBE, position=reading.point + r * toward_camera, cast_shadow=False,
+            "/probe",
+            radius=r,
+            color=palette.PROBE,
+            position=reading.point + r * toward_camera,
+            cast_shadow=False,
             receive_shadow=False,
-        )  # fmt: skip
+        )
         self.text.content = reading.table()
 
     def clear(self) -> None:

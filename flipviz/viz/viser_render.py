@@ -24,8 +24,8 @@ import contextlib
 import threading
 import time
 import traceback
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
-from typing import Callable, Hashable
 
 import numpy as np
 import viser
@@ -45,7 +45,6 @@ from flipviz.viz.viser_common import (
     visualize_output,
 )
 from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
-
 
 BACKGROUND = 2  # priority of periodic work nobody waits for (preview bakes, refreshes of a still view)
 
@@ -105,9 +104,10 @@ class RenderWorker:
             while not self._stop:
                 now = time.monotonic()
                 ready = [
-                    (j.priority, j.not_before, j.seq, k) for k, j in self._jobs.items()
+                    (j.priority, j.not_before, j.seq, k)
+                    for k, j in self._jobs.items()
                     if j.not_before <= now and (j.priority < BACKGROUND or now >= self._background_at)
-                ]  # fmt: skip
+                ]
                 if ready:
                     prio, _, _, key = min(ready)
                     self._last_priority = prio
@@ -226,7 +226,9 @@ class ViewportRenderer:
         self.worker = worker
         self.render = render  # (camera, outputs) -> dict or None when no model is ready
         self.is_training, self.preview_shown, self.depth_range = is_training, preview_shown, depth_range
-        self.max_width = int(min(max(max_width, MIN_WIDTH), MAX_WIDTH))  # the slider's own range (--view-width 64 broke it)
+        self.max_width = int(
+            min(max(max_width, MIN_WIDTH), MAX_WIDTH)
+        )  # the slider's own range (--view-width 64 broke it)
         self.settle_s, self.refresh_s = float(settle_s), float(refresh_s)
         self.on_unsnap, self.show_preview = on_unsnap, show_preview
         self.compare = compare  # the Compare tab's view of A and B, when it is on (viser_compare.py)
@@ -244,13 +246,25 @@ class ViewportRenderer:
                 "enabled": g.add_checkbox("Render my view", True, hint="Background: the model seen from your camera"),
                 "pass": g.add_markdown("_Your view: not rendered yet._"),  # which pass the background is
                 "output": guard_choice(g.add_dropdown("My view shows", OUTPUTS, initial_value="RGB"), OUTPUTS),
-                "max_width": guard_number(g.add_slider("Max resolution", MIN_WIDTH, MAX_WIDTH, 64, view.max_width,
-                                          hint="Width in pixels of the finest pass of your view"), MIN_WIDTH, MAX_WIDTH),
+                "max_width": guard_number(
+                    g.add_slider(
+                        "Max resolution",
+                        MIN_WIDTH,
+                        MAX_WIDTH,
+                        64,
+                        view.max_width,
+                        hint="Width in pixels of the finest pass of your view",
+                    ),
+                    MIN_WIDTH,
+                    MAX_WIDTH,
+                ),
                 "per_frame": g.add_checkbox("beta^2 per frame", False, hint="Colour beta^2 on this frame's range"),
                 "colorbar": g.add_image(np.full((46, 320, 3), 255, np.uint8), label="Colour scale", format="png"),
-                "snap_layer": guard_choice(g.add_dropdown("Snapped view shows", SNAP_LAYERS, initial_value="blend"), SNAP_LAYERS),
+                "snap_layer": guard_choice(
+                    g.add_dropdown("Snapped view shows", SNAP_LAYERS, initial_value="blend"), SNAP_LAYERS
+                ),
                 "blend": guard_number(g.add_slider("Ground truth <-> render", 0.0, 1.0, 0.05, 1.0), 0.0, 1.0),
-            }  # fmt: skip
+            }
         view.gui["colorbar"].visible = False
         with self._lock:  # rendered from now on (its GUI exists)
             self.clients[client.client_id] = view
@@ -265,8 +279,14 @@ class ViewportRenderer:
 
             return on_update
 
-        for attr, cast in (("enabled", bool), ("output", str), ("max_width", int), ("per_frame", bool),
-                           ("snap_layer", str), ("blend", float)):  # fmt: skip
+        for attr, cast in (
+            ("enabled", bool),
+            ("output", str),
+            ("max_width", int),
+            ("per_frame", bool),
+            ("snap_layer", str),
+            ("blend", float),
+        ):
             view.gui[attr].on_update(setter(attr, cast))
 
         @client.camera.on_update
@@ -354,7 +374,9 @@ class ViewportRenderer:
             c2w = camera_from_viser(view.client.camera.wxyz, view.client.camera.position, 1.0, 8, 8).c2w
         except AssertionError:
             return False
-        return bool(np.allclose(c2w[:3, 3], cam.c2w[:3, 3], atol=1e-3) and np.allclose(c2w[:3, :3], cam.c2w[:3, :3], atol=1e-3))
+        return bool(
+            np.allclose(c2w[:3, 3], cam.c2w[:3, 3], atol=1e-3) and np.allclose(c2w[:3, :3], cam.c2w[:3, :3], atol=1e-3)
+        )
 
     def _render(self, client_id: int, version: int, pass_idx: int, refresh: bool = False) -> None:
         view = self.clients.get(client_id)
@@ -398,7 +420,9 @@ class ViewportRenderer:
             self.worker.submit(("view", client_id), lambda: self._render(client_id, version, pass_idx + 1), priority=1)
         elif self.is_training():  # keep the still view up to date with training
             self.worker.submit(
-                ("view", client_id), lambda: self._render(client_id, version, pass_idx, refresh=True), priority=BACKGROUND,
+                ("view", client_id),
+                lambda: self._render(client_id, version, pass_idx, refresh=True),
+                priority=BACKGROUND,
                 delay=self.refresh_s,
             )
 
@@ -420,8 +444,9 @@ class ViewportRenderer:
             rgb[:, x0 : x0 + w] = error_map(mine, ref)
             return rgb, (*palette.ERROR_RANGE, "|render - reference|")
         if view.snap_layer == "beta^2" and out.get("beta2") is not None:
-            rgb[:, x0 : x0 + w] = beta2_over_render({k: v[:, x0 : x0 + w] for k, v in out.items() if v is not None},
-                                                    *palette.BETA2_RANGE)  # fmt: skip
+            rgb[:, x0 : x0 + w] = beta2_over_render(
+                {k: v[:, x0 : x0 + w] for k, v in out.items() if v is not None}, *palette.BETA2_RANGE
+            )
             return rgb, (*palette.BETA2_RANGE, "beta^2")
         a = float(view.blend)
         rgb[:, x0 : x0 + w] = to_uint8((1.0 - a) * ref + a * np.clip(mine, 0, 1))

@@ -29,8 +29,12 @@ GROUPS: dict[str, tuple[str, tuple[int, int, int]]] = {
     "true_plane": ("true symmetry plane", palette.TRUE_PLANE),
 }
 KIND_GROUP = {
-    "input": "inputs", "test": "tests", "mirror_init": "mirrors", "mirror_true": "mirror_true", "upper": "upper"
-}  # fmt: skip
+    "input": "inputs",
+    "test": "tests",
+    "mirror_init": "mirrors",
+    "mirror_true": "mirror_true",
+    "upper": "upper",
+}
 SNAP_HIDES = ("trajectories", "sphere", "true_plane")  # groups in the way of a snapped view, hidden while it lasts
 MAX_TRAJ_POINTS = 200
 NESTED = 1.4  # a test frustum where a mirrored camera lands: this much larger, so the two nest
@@ -53,9 +57,17 @@ def add_plane(scene: viser.SceneApi, name: str, plane: Plane, half: float, color
     """A translucent square for `plane`, centred on plane.point."""
     v, f = plane_quad(half)
     return scene.add_mesh_simple(
-        name, v, f, color=color, opacity=opacity, side="double", wxyz=plane_wxyz(plane),
-        position=plane.point, cast_shadow=False, receive_shadow=False,
-    )  # fmt: skip
+        name,
+        v,
+        f,
+        color=color,
+        opacity=opacity,
+        side="double",
+        wxyz=plane_wxyz(plane),
+        position=plane.point,
+        cast_shadow=False,
+        receive_shadow=False,
+    )
 
 
 class RunScene:
@@ -86,13 +98,23 @@ class RunScene:
             scene.add_frame("/run", show_axes=False)
             self.groups = {g: scene.add_frame(f"/run/{g}", show_axes=False, visible=self.visible[g]) for g in GROUPS}
             scene.add_icosphere(
-                "/run/sphere/mesh", radius=r, color=GROUPS["sphere"][1], subdivisions=3, wireframe=True,
-                opacity=0.12, position=setup.sphere_center, cast_shadow=False, receive_shadow=False,
-            )  # fmt: skip
+                "/run/sphere/mesh",
+                radius=r,
+                color=GROUPS["sphere"][1],
+                subdivisions=3,
+                wireframe=True,
+                opacity=0.12,
+                position=setup.sphere_center,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
             scene.add_point_cloud(
-                "/run/sphere/center", np.asarray(setup.sphere_center, np.float32)[None], (60, 90, 255),
-                point_size=0.06 * r / 4.0, point_shape="circle",
-            )  # fmt: skip
+                "/run/sphere/center",
+                np.asarray(setup.sphere_center, np.float32)[None],
+                (60, 90, 255),
+                point_size=0.06 * r / 4.0,
+                point_shape="circle",
+            )
             if setup.true_plane is not None:
                 add_plane(scene, "/run/true_plane/quad", setup.true_plane, 0.5 * r, GROUPS["true_plane"][1], 0.15)
             counts: dict[str, int] = {}
@@ -117,9 +139,18 @@ class RunScene:
         wxyz, pos = to_viser_pose(cam.c2w)
         image = thumbnail(info.image) if (with_image and info.image is not None) else None
         return self.server.scene.add_camera_frustum(
-            name, fov=cam.fov_y, aspect=cam.width / cam.height, scale=size * self.scale, color=color, image=image,
-            wxyz=wxyz, position=pos, thickness=0.012 * self.scale / 0.3, cast_shadow=False, receive_shadow=False,
-        )  # fmt: skip
+            name,
+            fov=cam.fov_y,
+            aspect=cam.width / cam.height,
+            scale=size * self.scale,
+            color=color,
+            image=image,
+            wxyz=wxyz,
+            position=pos,
+            thickness=0.012 * self.scale / 0.3,
+            cast_shadow=False,
+            receive_shadow=False,
+        )
 
     def _clear(self) -> None:
         if self.setup is not None:
@@ -193,9 +224,12 @@ class RunScene:
         if not segs:
             return
         self.server.scene.add_line_segments(
-            "/run/trajectories/lines", np.asarray(segs, np.float32), GROUPS["trajectories"][1],
-            thickness=3.0, thickness_units="screen",
-        )  # fmt: skip
+            "/run/trajectories/lines",
+            np.asarray(segs, np.float32),
+            GROUPS["trajectories"][1],
+            thickness=3.0,
+            thickness_units="screen",
+        )
 
     def set_mirror_colors(self, scores: list[float] | None) -> None:
         """Colour the mirrored frustums by their consistency PSNR on the red-yellow-green scale."""

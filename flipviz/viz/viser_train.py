@@ -3,8 +3,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import viser
@@ -18,8 +18,10 @@ from flipviz.viz.viser_guard import guard_choice, guard_number
 DATA_FOLDER = "(a data folder)"
 CONFIGS = tuple(str(i) for i in range(1, 9))
 SETTINGS = tuple(PRESETS)  # --preset: fast (flipviz's), authors (the official code's), paper (for a GPU)
-SETTING_HINT = ("fast: flipviz's grid, white background; authors: the official code's choices (the last sample is "
-                "the background: fog where no input looked); paper: those and the paper's NeRF, for a GPU")
+SETTING_HINT = (
+    "fast: flipviz's grid, white background; authors: the official code's choices (the last sample is "
+    "the background: fog where no input looked); paper: those and the paper's NeRF, for a GPU"
+)
 MAX_STEPS = 10_000_000  # TrainConfig.validate's bound
 
 
@@ -49,27 +51,46 @@ def psnr_scales(rng: tuple[float, float]) -> dict:
 
 class TrainPanel:
     def __init__(
-        self, server: viser.ViserServer, on_pause: Callable[[], None], on_resume: Callable[[], None],
+        self,
+        server: viser.ViserServer,
+        on_pause: Callable[[], None],
+        on_resume: Callable[[], None],
         on_restart: Callable[[RunChoice], None],
-    ) -> None:  # fmt: skip
+    ) -> None:
         gui = server.gui
         self.progress_md = gui.add_markdown("_Starting..._")
         self.progress_bar = gui.add_progress_bar(0.0, animated=False, color="orange")
         self.plot = gui.add_uplot(
             (np.array([0.0, 1.0]), np.array([0.0, 0.0]), np.array([np.nan, np.nan])),
-            ({"label": "step"}, {"label": "train batch", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
-             {"label": "unobserved views", "stroke": palette.hex_color(palette.CAMERA["test"]), "width": 2,
-              "spanGaps": True, "points": {"show": True, "size": 6}, "scale": "test"}),
-            title="PSNR (dB)", scales=psnr_scales((0.0, 1.0)), aspect=1.6, visible=False,
-        )  # fmt: skip
+            (
+                {"label": "step"},
+                {"label": "train batch", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
+                {
+                    "label": "unobserved views",
+                    "stroke": palette.hex_color(palette.CAMERA["test"]),
+                    "width": 2,
+                    "spanGaps": True,
+                    "points": {"show": True, "size": 6},
+                    "scale": "test",
+                },
+            ),
+            title="PSNR (dB)",
+            scales=psnr_scales((0.0, 1.0)),
+            aspect=1.6,
+            visible=False,
+        )
         self._plotted: tuple | None = None  # (points, last step, evaluations) of the curves shown
         self._range: tuple[float, float] = (0.0, 1.0)
         self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
         self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
         with gui.add_folder("Restart", expand_by_default=True):
             choices = (*SCENES, DATA_FOLDER)
-            self.scene_dd = guard_choice(gui.add_dropdown("Scene", choices, hint="A built-in object, or your own folder"), choices)
-            self.data_txt = gui.add_text("Data folder", "", hint="A scene folder under the browse roots (--data, --browse-root)")
+            self.scene_dd = guard_choice(
+                gui.add_dropdown("Scene", choices, hint="A built-in object, or your own folder"), choices
+            )
+            self.data_txt = gui.add_text(
+                "Data folder", "", hint="A scene folder under the browse roots (--data, --browse-root)"
+            )
             self.method_dd = guard_choice(gui.add_dropdown("Method", METHODS), METHODS)
             self.config_dd = guard_choice(gui.add_dropdown("Configuration", CONFIGS), CONFIGS)
             self.steps_num = guard_number(gui.add_number("Steps", 600, min=1, max=MAX_STEPS, step=1), 1, MAX_STEPS)
@@ -88,8 +109,14 @@ class TrainPanel:
     def choice(self) -> RunChoice:
         data = self.data_txt.value.strip() if self.scene_dd.value == DATA_FOLDER else None
         scene = None if data is not None else self.scene_dd.value
-        return RunChoice(scene, data, self.method_dd.value, int(self.config_dd.value), int(self.steps_num.value),
-                         self.setting_dd.value)  # fmt: skip
+        return RunChoice(
+            scene,
+            data,
+            self.method_dd.value,
+            int(self.config_dd.value),
+            int(self.steps_num.value),
+            self.setting_dd.value,
+        )
 
     def say(self, text: str) -> None:
         """One line under the Restart button (why a restart was refused); cleared by the next run."""
@@ -127,9 +154,15 @@ class TrainPanel:
         self.plot.data = data
 
     def show_progress(
-        self, setup: SetupEvent | None, status: str, ev: StepEvent | None, test_psnr: float | None,
-        render_share: float, message: str, run_dir: str | None,
-    ) -> None:  # fmt: skip
+        self,
+        setup: SetupEvent | None,
+        status: str,
+        ev: StepEvent | None,
+        test_psnr: float | None,
+        render_share: float,
+        message: str,
+        run_dir: str | None,
+    ) -> None:
         """The status text. During a restart it shows no number of the run that is going away."""
         head = f"**{setup.scene} | {setup.method} | {split_label(setup.config)}**" if setup else "**flipviz**"
         parts = [f"status: **{status}**"]
