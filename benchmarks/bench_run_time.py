@@ -45,7 +45,8 @@ def measure(args: Args) -> dict:
     import torch
 
     from flipviz.training.config import TrainConfig
-    from flipviz.training.trainer import Trainer, load_scene_for
+    from flipviz.training.setup import load_scene_for
+    from flipviz.training.trainer import Trainer
 
     torch.set_num_threads(args.threads)
     t_import = time.perf_counter() - t0

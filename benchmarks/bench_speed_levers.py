@@ -53,7 +53,8 @@ def train_one(job: tuple[str, str, int]) -> dict:
 
     from flipviz.training.config import TrainConfig
     from flipviz.training.evaluate import image_psnr
-    from flipviz.training.trainer import Trainer, load_scene_for
+    from flipviz.training.setup import load_scene_for
+    from flipviz.training.trainer import Trainer
 
     lever, method, config = job
     torch.set_num_threads(1)

@@ -76,7 +76,7 @@ def run_folder(args: Args, scene: str, config: int, name: str) -> Path:
 def mirrored_pixels(folder: Path) -> dict:
     """Part 1 for one Flip+U run: the share of lying pixels, covered or not, and beta^2 on each class."""
     from flipviz.data.builtin import builtin_name, render_view, true_depth
-    from flipviz.training.run import open_run
+    from flipviz.training.saved_run import open_run
 
     t = open_run(folder)
     scene, inputs = t.scene, t.split.inputs
@@ -84,7 +84,7 @@ def mirrored_pixels(folder: Path) -> dict:
     in_depth = [true_depth(scene, v.camera) for v in inputs]
     classes: dict[str, list[np.ndarray]] = {"agrees": [], "lies, covered": [], "lies, not covered": []}
     counts = dict.fromkeys(classes, 0)
-    for cam, view in zip(t.mirror_cameras(), t.training.mirror_views):
+    for cam, view in zip(t.mirror_cameras(), t.mirror_views):
         truth, _ = render_view(name, cam)
         out = t.render(cam, ("depth", "opacity", "beta2"))
         lies = np.abs(view.image - truth).mean(-1) > LIE
@@ -116,7 +116,7 @@ def mirrored_pixels(folder: Path) -> dict:
 
 def test_error_where_unsure(flip_folder: Path, bl_folder: Path) -> dict:
     """Part 2: Flip+U's squared error over B/L on the test views, and its share where beta^2 is high."""
-    from flipviz.training.run import open_run
+    from flipviz.training.saved_run import open_run
 
     f, b = open_run(flip_folder), open_run(bl_folder)
     extra, in_high = 0.0, 0.0

@@ -380,7 +380,8 @@ def test_two_tabs_and_snap_to_view(app):
 
 def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
     """The Compare tab: a finished run B beside the running A, through the real websocket protocol."""
-    from flipviz.training.run import open_run, train
+    from flipviz.training.run import train
+    from flipviz.training.saved_run import open_run
 
     b_cfg = TrainConfig(
         scene="chair",

@@ -318,7 +318,8 @@ def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, tmp_path_fac
 
     from flipviz.data.cameras import Camera
     from flipviz.training.config import TrainConfig
-    from flipviz.training.run import open_run, train
+    from flipviz.training.run import train
+    from flipviz.training.saved_run import open_run
     from flipviz.viz.viser_common import camera_from_viser
 
     b_dir = app.cfg.out.parent / "b-bl"  # beside A's folder: inside the app's browse roots

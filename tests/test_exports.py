@@ -17,9 +17,12 @@ from flipviz.data.builtin import render_view
 from flipviz.data.cameras import azimuth_deg
 from flipviz.errors import UserError
 from flipviz.files import FolderLock
+from flipviz.training import trainer as trainer_module
+from flipviz.training.checkpoint import load_checkpoint
 from flipviz.training.config import TrainConfig
 from flipviz.training.evaluate import image_psnr
-from flipviz.training.run import open_run, train
+from flipviz.training.run import train
+from flipviz.training.saved_run import Run, open_run
 from flipviz.viz.camera_path import orbit_path, read_keyframes, unobserved_path, write_keyframes
 from flipviz.viz.html_report import ReportConfig, write_run_report
 from flipviz.viz.rerun_compare import write_comparison
@@ -61,11 +64,12 @@ def test_open_run_renders_what_the_run_scored(runs):
     lock = FolderLock(runs["flip+u"])  # e.g. the app still serving it: opening to render neither waits nor writes
     t = open_run(runs["flip+u"])
     lock.release()
-    assert t.step == 60 and t.cfg.method == "flip+u" and t.read_only
+    assert t.step == 60 and t.cfg.method == "flip+u" and isinstance(t, Run)  # a record: no Trainer is built
     psnrs = [image_psnr(t.render(v.camera, ("rgb",))["rgb"], v.rgb) for v in t.split.tests]
     assert float(np.mean(psnrs)) == pytest.approx(metrics["psnr"], abs=1e-4)
-    with pytest.raises(RuntimeError):
-        t.run()
+    trained = load_checkpoint(runs["flip+u"])["mirror_c2w"].numpy()  # the refined mirrored poses, as trained
+    assert len(t.mirror_cameras()) == len(trained) == 8 and np.array_equal(t.mirror_c2w(), trained)
+    assert not np.allclose(trained, np.stack([v.camera.c2w for v in t.mirror_views]), atol=1e-6)  # BA moved them
     with pytest.raises(UserError, match="not a run folder"):
         open_run(runs["flip+u"] / "test_renders")
 
@@ -176,7 +180,11 @@ def parse_page(path: Path) -> list[tuple[str, dict]]:
     return p.tags
 
 
-def test_run_report_is_one_offline_page(runs, tmp_path):
+def test_run_report_is_one_offline_page(runs, tmp_path, monkeypatch):
+    def no_trainer(*a, **k):
+        raise AssertionError("a finished run opens as a saved_run.Run, not a Trainer")
+
+    monkeypatch.setattr(trainer_module.Trainer, "__init__", no_trainer)
     out = write_run_report(ReportConfig(run=runs["flip+u"], out=tmp_path / "report.html", res=RES, gif_frames=8))
     tags = parse_page(out)
     imgs = [a for t, a in tags if t == "img"]

@@ -23,7 +23,7 @@ from flipviz.data.driveby import export_driveby
 from flipviz.errors import UserError
 from flipviz.training.checkpoint import load_checkpoint
 from flipviz.training.config import TrainConfig
-from flipviz.training.run import open_run
+from flipviz.training.saved_run import open_run
 from flipviz.training.setup import run_split
 from flipviz.training.trainer import Trainer
 

@@ -15,7 +15,7 @@ from flipviz.bench.runner import RunSpec
 from flipviz.cli import parse_command
 from flipviz.model.nerf_field import NerfConfig
 from flipviz.training.config import TrainConfig
-from flipviz.training.run import run_config
+from flipviz.training.saved_run import run_config
 from flipviz.training.setup import model_config
 
 ROOT = Path(__file__).resolve().parents[1]

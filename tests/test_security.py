@@ -14,7 +14,7 @@ from flipviz.errors import UserError
 from flipviz.files import inside_roots
 from flipviz.training.checkpoint import load_checkpoint
 from flipviz.training.config import TrainConfig
-from flipviz.training.run import open_run
+from flipviz.training.saved_run import open_run
 from flipviz.training.trainer import Trainer
 
 TINY = dict(

@@ -109,7 +109,8 @@ def execute_run(task: RunTask | dict) -> dict:
     }
     try:
         result["versions"] = versions()
-        from flipviz.training.run import make_trainer, run_config
+        from flipviz.training.run import make_trainer
+        from flipviz.training.saved_run import run_config
 
         trainer = make_trainer(run_config(task.train), resume_unfinished=True)
         twin = _finished_twin(task, trainer)

@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Iterable
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 from flipviz.data.dataset import SceneData
-from flipviz.errors import UserError
-from flipviz.training.checkpoint import CHECKPOINT_NAME, checkpoint_path, load_checkpoint
+from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import Observer
 from flipviz.training.trainer import Trainer
@@ -41,39 +39,3 @@ def train(
     for obs in observers:
         trainer.add_observer(obs)
     return trainer, trainer.run()  # KeyboardInterrupt inside the loop ends it with status "stopped"
-
-
-def run_config(settings: dict) -> TrainConfig:
-    """A run's TrainConfig from its settings as saved (checkpoint["config"], metrics.json's "settings");
-    settings that are not a TrainConfig's (a crafted or damaged file) are one UserError line."""
-    if not isinstance(settings, dict):
-        raise UserError(f"the run's saved settings are a {type(settings).__name__}, not a table")
-    names = {f.name for f in fields(TrainConfig)}
-    kw = {k: v for k, v in settings.items() if k in names}
-    kw.setdefault("unconfident_plane", "use")  # saved before the option existed: any plane was trained with
-    try:
-        for k in ("data", "out", "rrd", "resume", "plane_file"):
-            if kw.get(k) is not None:
-                kw[k] = Path(kw[k])
-        if kw.get("grid_res") is not None:
-            kw["grid_res"] = tuple(kw["grid_res"])
-        return TrainConfig(**kw)
-    except (TypeError, ValueError) as e:
-        raise UserError(f"the run's saved settings are damaged ({str(e).splitlines()[0][:120]})") from None
-
-
-def open_run(run: Path | str, device: str | None = None, scene: SceneData | None = None) -> Trainer:
-    """A run folder (or its checkpoint.pt) read back to render, as it was when it ended: its config,
-    its scene, its model and its refined poses. Nothing in the folder is written or locked, so a run
-    that another process is training can be opened too (at its last checkpoint)."""
-    try:
-        path = checkpoint_path(run)
-    except FileNotFoundError:
-        raise UserError(
-            f"{run} is not a run folder with a checkpoint (bench runs keep theirs with --keep-checkpoints)"
-        ) from None
-    cfg = run_config(load_checkpoint(path).get("config"))
-    cfg = replace(cfg, resume=path, out=path.parent, device=device or cfg.device, no_rrd=True).validate()
-    if cfg.data is not None and not os.path.exists(cfg.data):  # False for a name the system refuses
-        raise UserError(f"{path.parent} was trained on {cfg.data}, which is not found from here")
-    return Trainer(cfg, scene, read_only=True)

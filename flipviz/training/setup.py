@@ -21,6 +21,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from flipviz.data.dataset import SceneData, check_image_size
@@ -32,6 +33,7 @@ from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.model import GridConfig, ModelConfig, NerfConfig, RadianceModel
 from flipviz.training import flip
 from flipviz.training.config import PAPER_LR_DECAY, TrainConfig
+from flipviz.training.events import CameraInfo, SetupEvent
 from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
 from flipviz.training.plane_estimate import estimate_or_read, read_estimate
 
@@ -81,6 +83,13 @@ def fresh_model(cfg: TrainConfig, scene: SceneData, with_beta: bool) -> Radiance
     return RadianceModel(
         model_config(cfg), scene.bbox, scene.near, scene.far, with_beta=with_beta, device=torch.device(cfg.device)
     )
+
+
+def load_scene_for(cfg: TrainConfig) -> SceneData:
+    """The scene of a run: a Blender folder (cfg.data) or a built-in scene, at cfg.res pixels."""
+    from flipviz.data import load_scene
+
+    return load_scene(cfg.scene, cfg.data, cfg.res)
 
 
 def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
@@ -144,3 +153,37 @@ def build_run(
         cfg, training, plane, model.cfg.beta_min, device, mirrors_join_at(cfg) if plane is not None else 0
     )
     return RunSetup(scene, spec, split, mirrors, estimate, warm_up, training, model, hooks)
+
+
+def setup_event(
+    run_name: str,
+    cfg: TrainConfig,
+    scene: SceneData,
+    split: Split,
+    mirrors: MirrorSet,
+    trained: bool,
+    estimate: PlaneEstimate | None,
+) -> SetupEvent:
+    """What a run is made of, for its observers and viewers: its cameras with their images, the
+    mirrors' sphere and plane (`trained`: the mirrored views are trained on), the scene's box and up."""
+    cams = [CameraInfo("input", v.camera, v.rgb, v.name) for v in split.inputs]
+    cams += [CameraInfo("mirror_init", v.camera, v.rgb, v.meta.get("source", "")) for v in mirrors.views]
+    cams += [CameraInfo("mirror_true", c, None, v.name) for c, v in zip(mirrors.true_cameras or [], split.inputs)]
+    cams += [CameraInfo("test", v.camera, v.rgb, v.name, v.alpha) for v in split.tests]
+    cams += [CameraInfo("upper", v.camera, v.rgb, v.name) for v in split.uppers]
+    return SetupEvent(
+        run_name=run_name,
+        scene=scene.name,
+        method=cfg.method,
+        config=split.config,
+        total_steps=cfg.steps,
+        sphere_center=mirrors.sphere.center.copy(),
+        sphere_radius=float(mirrors.sphere.radius),
+        plane=mirrors.plane if trained else None,
+        true_plane=scene.symmetry_plane,
+        cameras=cams,
+        bbox=np.asarray(scene.bbox, dtype=np.float64),
+        settings=cfg.to_dict(),
+        up=np.asarray(scene.up, dtype=np.float64),
+        plane_estimate=estimate,
+    )

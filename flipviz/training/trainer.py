@@ -41,29 +41,20 @@ from flipviz.training import evaluate as ev
 from flipviz.training.artifacts import PLANE_FILE
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import (
-    CameraInfo,
     EndEvent,
     ImagesEvent,
     Observer,
     RenderedView,
-    SetupEvent,
     StepEvent,
 )
 from flipviz.training.plane_estimate import estimate_from_field, estimate_plane, read_estimate, shared_estimate
-from flipviz.training.setup import RunSetup, build_run, fresh_model
+from flipviz.training.setup import RunSetup, build_run, fresh_model, load_scene_for, setup_event
 
 log = logging.getLogger("flipviz.training")
 
 
 class NonFiniteLoss(RuntimeError):
     pass
-
-
-def load_scene_for(cfg: TrainConfig) -> SceneData:
-    """The scene of a run: a Blender folder (cfg.data) or a built-in scene, at cfg.res pixels."""
-    from flipviz.data import load_scene
-
-    return load_scene(cfg.scene, cfg.data, cfg.res)
 
 
 def scene_label(cfg: TrainConfig) -> str:
@@ -76,25 +67,23 @@ def default_run_dir(cfg: TrainConfig) -> Path:
 
 
 class Trainer:
-    def __init__(self, cfg: TrainConfig, scene: SceneData | None = None, read_only: bool = False) -> None:
-        """`read_only`: a finished run opened to render (`run.open_run`): its folder is neither locked
-        nor written, and `run()` refuses."""
+    def __init__(self, cfg: TrainConfig, scene: SceneData | None = None) -> None:
+        """A run to train (a finished one opens to look at as a `saved_run.Run`, with no trainer)."""
         self.cfg = cfg.validate()
-        self.read_only = read_only
         self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
-        self._lock_file = None if read_only else FolderLock(self.run_dir)  # the run folder, ours until run() ends
+        self._lock_file = FolderLock(self.run_dir)  # the run folder, ours until run() ends
         try:
             self._set_up(scene)
         except BaseException:  # refused or interrupted during setup: no run folder is left behind empty
-            if self._lock_file is not None:
-                self._lock_file.abandon()
+            self._lock_file.abandon()
             raise
-        self.setup_event = self._make_setup_event()
+        self.setup_event = setup_event(
+            self.run_dir.name, cfg, self.scene, self.split, self.mirrors, self.spec.mirrors, self.plane_estimate
+        )
 
     def _set_up(self, scene: SceneData | None) -> None:
         cfg = self.cfg
-        if not self.read_only:
-            self._take_over_folder()
+        self._take_over_folder()
         keep_freed_memory()  # a step's large temporaries reuse the last step's memory (runtime.py)
         torch.manual_seed(cfg.seed)
         self._gen = torch.Generator().manual_seed(cfg.seed)
@@ -107,9 +96,9 @@ class Trainer:
         self.step = 0
         self.field_start = 0  # the step the field began at: 0, or the agreement gate's drop (--after-drop restart)
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
-        if rs.warm_up and not self.read_only:
+        if rs.warm_up:
             self._estimate_after(rs.warm_up)
-        if self.plane_estimate is not None and not self.read_only:
+        if self.plane_estimate is not None:
             artifacts.write_plane(self.run_dir, self.plane_estimate)
         self._observers: list[Observer] = []
         self._lock = threading.RLock()  # one lock for a training step and for render()
@@ -276,8 +265,6 @@ class Trainer:
         """Train to total_steps (cfg.steps, longer after a restart; or until stopped / NaN); returns the
         final metrics."""
         cfg = self.cfg
-        if self.read_only:
-            raise RuntimeError("a run opened read-only (open_run) renders; it does not train")
         self._emit("on_setup", self.setup_event)
         status, message = "finished", ""
         try:
@@ -396,8 +383,7 @@ class Trainer:
 
     def close(self) -> None:
         """Give the run folder back without training (run() does it when it ends)."""
-        if self._lock_file is not None:
-            self._lock_file.release()
+        self._lock_file.release()
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_state(self) -> dict:
@@ -408,6 +394,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "opt_field": self.opt_field.state_dict(),
             **self.flip.state_dict(),  # poses, opt_pose, plane, opt_plane
+            "mirror_c2w": None if (c2w := self.mirror_c2w()) is None else torch.from_numpy(c2w),  # for saved_run
             "train_seconds": self.train_seconds,
             "rng": self._gen.get_state(),
             "torch_rng": torch.get_rng_state(),
@@ -474,30 +461,6 @@ class Trainer:
                 getattr(obs, name)(event)
             except Exception as e:  # observers never break training
                 log.warning("observer %s.%s failed: %s: %s", type(obs).__name__, name, type(e).__name__, e)
-
-    def _make_setup_event(self) -> SetupEvent:
-        ms = self.mirrors
-        cams = [CameraInfo("input", v.camera, v.rgb, v.name) for v in self.split.inputs]
-        cams += [CameraInfo("mirror_init", v.camera, v.rgb, v.meta.get("source", "")) for v in ms.views]
-        cams += [CameraInfo("mirror_true", c, None, v.name) for c, v in zip(ms.true_cameras or [], self.split.inputs)]
-        cams += [CameraInfo("test", v.camera, v.rgb, v.name, v.alpha) for v in self.split.tests]
-        cams += [CameraInfo("upper", v.camera, v.rgb, v.name) for v in self.split.uppers]
-        return SetupEvent(
-            run_name=self.run_dir.name,
-            scene=self.scene.name,
-            method=self.cfg.method,
-            config=self.split.config,
-            total_steps=self.cfg.steps,
-            sphere_center=ms.sphere.center.copy(),
-            sphere_radius=float(ms.sphere.radius),
-            plane=ms.plane if self.spec.mirrors else None,
-            true_plane=self.scene.symmetry_plane,
-            cameras=cams,
-            bbox=np.asarray(self.scene.bbox, dtype=np.float64),
-            settings=self.cfg.to_dict(),
-            up=np.asarray(self.scene.up, dtype=np.float64),
-            plane_estimate=self.plane_estimate,
-        )
 
     def _plane_report(self) -> dict:
         """The mirror plane used, its estimate (auto), and its error against the scene's true plane."""

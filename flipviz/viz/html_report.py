@@ -18,7 +18,7 @@ import base64
 import io
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import jinja2
 import numpy as np
@@ -29,6 +29,9 @@ from flipviz.data.images import to_uint8
 from flipviz.files import cannot_write, write_text
 from flipviz.training.config import METHOD_LABELS
 from flipviz.viz import palette
+
+if TYPE_CHECKING:
+    from flipviz.training.saved_run import Run
 
 TEMPLATE = jinja2.Environment(autoescape=True).from_string("""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
@@ -185,23 +188,21 @@ def camera_map(setup, mirror_c2w: np.ndarray | None) -> np.ndarray:
     return np.asarray(Image.open(buf).convert("RGB"))
 
 
-def _summary(trainer, metrics: dict) -> str:
-    cfg = trainer.cfg
+def _summary(run: Run, metrics: dict) -> str:
+    cfg = run.cfg
     rows = [
-        ("scene", trainer.scene.name),
+        ("scene", run.scene.name),
         ("method", METHOD_LABELS[cfg.method]),
         (
             "views",
-            f"configuration {trainer.split.config}"
-            if trainer.split.config
-            else f"inputs {cfg.inputs or '(capture split)'}",
+            f"configuration {run.split.config}" if run.split.config else f"inputs {cfg.inputs or '(capture split)'}",
         ),
-        ("steps", trainer.step),
+        ("steps", run.step),
         ("resolution", f"{cfg.res} px"),
         ("field", cfg.field),
         ("mirror plane", cfg.mirror_plane),
         ("mirror pose", cfg.mirror_pose),
-        ("training time", f"{trainer.train_seconds:.0f} s on {cfg.device}"),
+        ("training time", f"{run.train_seconds:.0f} s on {cfg.device}"),
     ]
     if "psnr" in metrics:
         rows += [("PSNR, unobserved views", f"{metrics['psnr']:.2f} dB"), ("SSIM", f"{metrics['ssim']:.3f}")]
@@ -225,24 +226,24 @@ def run_page(cfg: ReportConfig) -> str:
     """The HTML of a run's page (renders its views with the run's final model)."""
     import json
 
-    from flipviz.training.run import open_run
+    from flipviz.training.saved_run import open_run
     from flipviz.viz.camera_path import unobserved_path
     from flipviz.viz.video import GifFrames, GroundTruth, compose_row, render_frames
 
-    trainer = open_run(cfg.run, cfg.device)
-    mpath = trainer.run_dir / "metrics.json"
+    run = open_run(cfg.run, cfg.device)
+    mpath = run.run_dir / "metrics.json"
     metrics = json.loads(mpath.read_text()) if mpath.is_file() else {}
-    setup = trainer.setup_event
-    label = f"{METHOD_LABELS[trainer.cfg.method]}, {trainer.scene.name}"
+    setup = run.setup_event
+    label = f"{METHOD_LABELS[run.cfg.method]}, {run.scene.name}"
     sections = [
-        Section("Run", _summary(trainer, metrics)),
-        Section("Cameras", "", [Figure(png_uri(camera_map(setup, trainer.mirror_c2w())), width="640px")]),
+        Section("Run", _summary(run, metrics)),
+        Section("Cameras", "", [Figure(png_uri(camera_map(setup, run.mirror_c2w())), width="640px")]),
     ]
-    gt = GroundTruth.of_run(trainer)
+    gt = GroundTruth.of_run(run)
     tests = []
-    for v in trainer.split.tests:
+    for v in run.split.tests:
         cam = v.camera.resized(cfg.res)
-        tests.append(Figure(png_uri(compose_row(v.name, trainer.render(cam), gt(cam)))))
+        tests.append(Figure(png_uri(compose_row(v.name, run.render(cam), gt(cam)))))
     sections.append(
         Section(
             "Unobserved views",
@@ -255,8 +256,8 @@ def run_page(cfg: ReportConfig) -> str:
         )
     )
     mirrors = []
-    for view, cam in zip(trainer.training.mirror_views, trainer.mirror_cameras()):
-        out = trainer.render(cam)
+    for view, cam in zip(run.mirror_views, run.mirror_cameras()):
+        out = run.render(cam)
         panels = [to_uint8(view.image), to_uint8(out["rgb"])]
         if out.get("beta2") is not None:
             panels.append(palette.colormap(out["beta2"], *palette.BETA2_RANGE))
@@ -281,10 +282,10 @@ def run_page(cfg: ReportConfig) -> str:
     if cfg.gif_frames > 0:
         small = GifFrames(step=1, max_panel=GIF_WIDTH)
         cams = [c.resized(min(cfg.res, GIF_WIDTH)) for c in unobserved_path(setup, cfg.gif_frames)]
-        for _ in small.keep(render_frames([(label, trainer.render)], cams, gt, progress=False)):
+        for _ in small.keep(render_frames([(label, run.render)], cams, gt, progress=False)):
             pass
         sections.append(Section("Across the unobserved side", "", [Figure(data_uri(small.gif_bytes(8), "image/gif"))]))
-    return page(f"flipviz run {trainer.run_dir.name}", sections)
+    return page(f"flipviz run {run.run_dir.name}", sections)
 
 
 def write_run_report(cfg: ReportConfig) -> Path:

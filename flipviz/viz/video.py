@@ -246,7 +246,7 @@ class GifFrames:
 
 def make_video(cfg: VideoConfig) -> tuple[Path, Path | None]:
     """`flipviz video`: open the runs, render the path, write the MP4 (and the GIF)."""
-    from flipviz.training.run import open_run
+    from flipviz.training.saved_run import open_run
     from flipviz.training.trainer import scene_label
 
     cfg.validate()

@@ -88,7 +88,8 @@ def finished_runs(folders: list[Path]) -> list[Path]:
 
 
 class RunB:
-    """The second run: a trainer opened read-only from a folder, or one training in its own thread."""
+    """The second run: a finished one opened from its folder (saved_run.Run), or a Trainer training in its own
+    thread."""
 
     def __init__(self, trainer, training: bool) -> None:
         self.trainer, self.training = trainer, training
@@ -219,7 +220,7 @@ class ComparePanel:
     def load(self, folder: Path) -> None:
         """Open a finished run as B (a few seconds: its scene and model are loaded). Only a folder under
         the app's browse roots: a browser never makes the server read anywhere else."""
-        from flipviz.training.run import open_run
+        from flipviz.training.saved_run import open_run
 
         try:
             folder = inside_roots(folder, self.roots(), "run folder")
