@@ -88,6 +88,7 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
     assert never.dropped_at is None
 
 
+@pytest.mark.slow
 def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_path, chair16):
     """--after-drop restart: at the drop a fresh field, seeded as B/L's, trains the inputs for the full
     steps, so the final field equals B/L's bit for bit; a checkpoint of it resumes (no beta head)."""
@@ -166,6 +167,7 @@ def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
     return tr.run(), steps
 
 
+@pytest.mark.slow
 def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_path):
     """The mug's mirrored views show its handle where the inputs saw none: their error on the object
     climbs past twice the inputs' once the NLL lets them, and the gate drops them; the exactly symmetric

@@ -33,6 +33,8 @@ from flipviz.viz.viser_common import (
     visualize_output,
 )
 
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

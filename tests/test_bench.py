@@ -26,6 +26,8 @@ from flipviz.bench.tables import render_markdown
 from flipviz.data.dataset import DatasetError
 from flipviz.training.config import TrainConfig
 
+pytestmark = pytest.mark.bench
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 TINY = [

@@ -22,7 +22,10 @@ from browser import CountingProxy, chromium, chromium_available, screenshot_png,
 from flipviz.viz import palette
 from flipviz.viz.viser_app import App, AppConfig
 
-pytestmark = pytest.mark.skipif(not chromium_available(), reason="needs chromium and chromium-driver")
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not chromium_available(), reason="needs chromium and chromium-driver"),
+]
 
 
 @pytest.fixture(scope="module")

@@ -24,6 +24,7 @@ def test_ci_runs_the_readme_test_command() -> None:
     assert "torch==2.13.0" in ci_line[0], "the install must pin the CPU torch wheel"
 
 
+@pytest.mark.slow
 def test_app_help() -> None:
     r = _run("app.py", "--scene", "chair", "--help")
     assert r.returncode == 0, r.stderr
@@ -31,6 +32,7 @@ def test_app_help() -> None:
         assert flag in r.stdout
 
 
+@pytest.mark.slow
 def test_cli_subcommands_help() -> None:
     r = _run("-m", "flipviz.cli", "--help")
     assert r.returncode == 0, r.stderr
@@ -39,6 +41,7 @@ def test_cli_subcommands_help() -> None:
 
 
 @pytest.mark.parametrize("entry", [("-m", "flipviz.cli", "train"), ("app.py",)])
+@pytest.mark.slow
 def test_missing_dataset_is_a_one_line_error(tmp_path: Path, entry: tuple[str, ...]) -> None:
     r = _run(*entry, "--data", str(tmp_path / "nope"), "--steps", "1", "--no-rrd")
     assert r.returncode == 2
@@ -61,6 +64,7 @@ def test_ctrl_c_during_setup_is_one_line(tmp_path: Path, monkeypatch, capsys) ->
 
 
 @pytest.mark.parametrize("entry, heavy", [("flipviz.cli", "torch"), ("app.py", "viser")])
+@pytest.mark.slow
 def test_ctrl_c_during_the_first_imports_is_one_line(entry: str, heavy: str) -> None:
     """A Ctrl-C lands while torch or viser is imported (seconds on a cold machine): one line, exit 130.
     The interrupt is raised by an import hook, at the import itself, so the test needs no timing."""

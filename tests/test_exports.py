@@ -29,6 +29,8 @@ from flipviz.viz.rerun_compare import write_comparison
 from flipviz.viz.rerun_observer import make_rerun_observer
 from flipviz.viz.video import TITLE_H, VideoConfig, make_video, path_cameras
 
+pytestmark = pytest.mark.slow
+
 RES = 32
 
 

@@ -183,6 +183,7 @@ def _mutate_state(state: dict, rng: random.Random) -> dict:
 
 
 @pytest.mark.filterwarnings("error::RuntimeWarning")
+@pytest.mark.slow
 def test_mutated_checkpoints_open_resume_or_fail_in_one_line(run_folder, tmp_path):
     ckpt = run_folder / "checkpoint.pt"
     state = torch.load(ckpt, weights_only=True)

@@ -169,6 +169,7 @@ def ring(scene):
 
 
 @pytest.mark.parametrize("kind", ["grid", "nerf"])
+@pytest.mark.slow
 def test_fit_reduces_loss_and_checkpoint_round_trip(kind, chair32):
     views = ring(chair32)
     if kind == "grid":

@@ -63,6 +63,7 @@ def test_the_app_in_the_paper_preset_trains_the_papers_50k_steps():
 
 @pytest.mark.skipif(not (LEGO / "transforms_test.json").is_file(), reason="needs the NeRF-synthetic lego")
 @pytest.mark.skipif(shutil.which("timeout") is None, reason="needs coreutils' timeout")
+@pytest.mark.slow
 def test_gpu_paper_script_runs_on_the_cpu_with_a_tiny_step_count(tmp_path):
     env = dict(
         os.environ,

@@ -60,6 +60,7 @@ def turned_chair():
     return load_builtin("chair-turned", 100)
 
 
+@pytest.mark.slow
 def test_auto_recovers_the_turned_chair_plane(turned_chair):
     """Acceptance: within 3 degrees and 0.05 units, from the 8 inputs of configuration 1 alone."""
     est = estimate_plane(make_split(turned_chair, 1).inputs, turned_chair)
@@ -68,6 +69,7 @@ def test_auto_recovers_the_turned_chair_plane(turned_chair):
     assert est.confident, est.confidence
 
 
+@pytest.mark.slow
 def test_auto_doubts_the_asymmetric_mug():
     """The mug (a handle and a leaning spoon): measured 0.08-0.20 over the 8 configurations. (The
     lamp, 0.19-0.38, is not reliably doubted: see docs/results/plane.)"""

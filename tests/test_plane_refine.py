@@ -93,6 +93,7 @@ def plane_gradient(model: RadianceModel, inputs, start: Plane) -> MirrorPlane:
 
 
 @pytest.mark.parametrize("deg, offset", [(3.0, 0.0), (-3.0, 0.0), (0.0, 0.06), (0.0, -0.06)])
+@pytest.mark.slow
 def test_the_plane_gradient_points_back_to_the_true_plane(known_field, deg, offset):
     model, inputs = known_field
     start = turned(TRUE, deg, offset)
@@ -110,6 +111,7 @@ def test_the_plane_gradient_points_back_to_the_true_plane(known_field, deg, offs
     assert after[k] < before[k] - (0.3 if deg else 0.003), (before, after)
 
 
+@pytest.mark.slow
 def test_a_symmetric_object_keeps_its_exact_plane(tmp_path):
     """Started from the chair's exact plane, refinement leaves it there (0.3 deg, 0.01 units). Measured: 0.11° /
     0.000 at 64 px and 400 steps, 0.08° / 0.001 at the defaults (100 px, 600); at 48 px and 300 steps it drifts
@@ -132,6 +134,7 @@ def test_a_symmetric_object_keeps_its_exact_plane(tmp_path):
     assert m["plane"]["error_deg"] < 1e-9  # it started exact
 
 
+@pytest.mark.slow
 def test_refinement_recovers_a_plane_turned_5_degrees_and_moved_5_hundredths(tmp_path):
     """A shortened default run (Flip+U, 64 px, 400 steps: 25 s, where 100 px and 600 steps took 3 min on a busy
     CI machine) on the chair, its plane started 5° and 0.05 off. It ends 0.48° / 0.002 off here."""
@@ -181,6 +184,7 @@ def test_both_fields_move_the_plane_and_a_resumed_run_keeps_it(tmp_path, field):
     assert "refined" not in fixed.run()["plane"] and fixed.flip.current_plane() is None
 
 
+@pytest.mark.slow
 def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(tmp_path):
     """--mirror-plane auto (issue 20 item 3): the run trains its inputs alone for --estimate-after steps (at
     most a quarter),

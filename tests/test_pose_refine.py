@@ -131,6 +131,7 @@ def chair_views(tmp_path_factory):
     return bbox, views
 
 
+@pytest.mark.slow
 def test_ba_recovers_a_perturbed_camera(chair_views):
     """Fit the grid on the true views, perturb one pose by 5 deg / 0.1, refine that pose only."""
     bbox, views = chair_views

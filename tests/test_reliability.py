@@ -77,6 +77,7 @@ SAVE_CHILD = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_an_interrupt_inside_the_save_keeps_the_checkpoint(tmp_path):
     r = subprocess.run(
         [sys.executable, "-c", SAVE_CHILD, str(tmp_path / "run")], cwd=REPO, capture_output=True, text=True, timeout=120
@@ -108,6 +109,7 @@ UPSAMPLE_CHILD = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_an_interrupt_inside_the_grid_upsample_leaves_a_run_that_resumes(tmp_path):
     out = tmp_path / "run"
     args = [
@@ -146,6 +148,7 @@ def test_an_interrupt_inside_the_grid_upsample_leaves_a_run_that_resumes(tmp_pat
 
 # ------------------------------------------------------------------------- 2: SIGTERM / SIGHUP
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.slow
 def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig):
     out = tmp_path / "run"
     cmd = [
@@ -210,6 +213,7 @@ def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, sig):
 
 
 # ------------------------------------------------------------------------- 3: resume keeps the recording
+@pytest.mark.slow
 def test_resume_into_the_same_folder_keeps_the_earlier_recording(tmp_path):
     out = tmp_path / "run"
     base = [
@@ -304,6 +308,7 @@ def in_small_filesystem(tmp_path: Path, megabytes: int, script: str) -> subproce
     return r
 
 
+@pytest.mark.slow
 def test_a_real_full_disk_is_one_line_and_keeps_a_readable_checkpoint_and_recording(tmp_path):
     """A 40 MB tmpfs with 28 MB free: the step-100 checkpoint (the grid still coarse) fits, the step-200
     one (the grid refined, plus the copy an atomic write needs) does not. The run stops in one line; the
@@ -330,6 +335,7 @@ def test_a_real_full_disk_is_one_line_and_keeps_a_readable_checkpoint_and_record
     assert any("the recording" in e and "stops here" in e for e in errs), out
 
 
+@pytest.mark.slow
 def test_compare_onto_a_full_disk_is_one_line(tmp_path):
     runs = []
     for method in ("bl", "flip"):
@@ -370,6 +376,7 @@ def test_compare_onto_a_full_disk_is_one_line(tmp_path):
     assert len(err.splitlines()) == 1 and "cannot write" in err and "MB are free on that disk" in err, err
 
 
+@pytest.mark.slow
 def test_video_and_report_onto_a_full_disk_are_one_line_and_keep_the_earlier_files(tmp_path):
     """With 16 KB left, ffmpeg leaves a file it cannot open and imageio raises nothing: the video is
     decoded back before it replaces the earlier one."""
@@ -465,6 +472,7 @@ def test_an_interrupt_or_refusal_during_setup_leaves_nothing_behind(tmp_path, mo
     assert "cannot resume" in capsys.readouterr().err and sorted(p.name for p in done.iterdir()) == before
 
 
+@pytest.mark.slow
 def test_training_over_an_earlier_run_is_refused_unless_overwrite(tmp_path, capsys):
     out, tiny = (
         tmp_path / "run",
@@ -725,6 +733,7 @@ def signal_and_wait(p: subprocess.Popen, send) -> tuple[str, float]:
     return err, time.monotonic() - t0
 
 
+@pytest.mark.bench
 def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes_and_a_second_bench_is_refused(tmp_path):
     out = tmp_path / "bench"
     cmd = [
@@ -790,6 +799,7 @@ def test_ctrl_c_stops_the_bench_within_seconds_and_it_resumes_and_a_second_bench
 
 
 @pytest.mark.parametrize("target", ["group", "worker"])
+@pytest.mark.bench
 def test_a_sigterm_stops_a_two_worker_bench_with_an_idle_worker_within_seconds(tmp_path, target):
     """A container stop or job scheduler sends SIGTERM to the whole process group; `kill PID` to one
     worker. The case that hung: one worker idle in the pool's queue (its run failed at once), the
@@ -928,6 +938,7 @@ def wait_served(p: subprocess.Popen) -> str:
     return "".join(lines)
 
 
+@pytest.mark.slow
 def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
     p = start_app(tmp_path, "--checkpoint-every", "5")
     try:
@@ -947,6 +958,7 @@ def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
     assert load_checkpoint(tmp_path / "app")["step"] > 0
 
 
+@pytest.mark.slow
 def test_app_ctrl_c_during_setup_is_quick(tmp_path):
     p = start_app(tmp_path)
     try:
@@ -979,6 +991,7 @@ def test_res_wider_than_the_data_is_refused(tmp_path):
         load_blender(tmp_path, res=16)
 
 
+@pytest.mark.slow
 def test_app_on_a_busy_port_says_where_it_serves(tmp_path):
     import socket
 

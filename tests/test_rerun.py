@@ -245,6 +245,7 @@ CHILD = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_killed_run_leaves_a_readable_recording(tmp_path):
     out = tmp_path / "killed"
     child = subprocess.Popen([sys.executable, "-c", CHILD, str(out)], stdout=subprocess.PIPE, text=True, cwd=REPO)
@@ -292,6 +293,7 @@ def test_a_recording_that_cannot_be_compacted_is_kept_as_it_is(tmp_path, caplog)
     assert "kept as written" in caplog.text
 
 
+@pytest.mark.slow
 def test_the_field_is_recorded_as_gaussian_splats(run, tmp_path):
     """Issue 21: the recording holds the 3D model: the field's solid cells as Gaussian splats at every
     n-th periodic render and at the end, one scale for all, each with its cell's colour and opacity."""

@@ -275,6 +275,7 @@ def test_lpips_network_loads_weight_files(tmp_path, monkeypatch):
     assert m["per_view"][1]["lpips"] > 0 and isinstance(m["lpips"], float)
 
 
+@pytest.mark.slow
 def test_flip_u_beats_baseline_on_unobserved_views(chair, tmp_path):
     """The paper's claim, small: on the (mirror-symmetric) chair, Flip+U renders the unobserved
     side better than B/L. Measured: res 48 / 400 steps 26.2 vs 20.3 dB; at this size (res 24,
@@ -297,6 +298,7 @@ def test_flip_u_beats_baseline_on_unobserved_views(chair, tmp_path):
     assert psnr["flip+u"] > psnr["bl"] + 1.0, psnr
 
 
+@pytest.mark.slow
 def test_ba_recovers_a_perturbed_mirrored_pose_at_default_settings(tmp_path):
     """The real Trainer, Flip+U at its defaults (100 px, 600 steps) on the chair with its true plane held
     fixed (BA alone, from the first step): one mirrored camera's initial pose is turned by 3 deg and moved
