@@ -67,7 +67,7 @@ def app(tmp_path_factory):
         yield a
     finally:
         a.stop()
-    assert a.trainer is None and not a._thread.is_alive()
+    assert a.trainer is None and not a.building() and not a.session._thread.is_alive()
 
 
 def run(coro):

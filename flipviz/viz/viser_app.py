@@ -1,9 +1,10 @@
 """The browser app: train a run in the background and watch / probe it with viser.
 
 `run_app(cfg)` serves viser on cfg.host:cfg.port and trains with the real `Trainer` in a
-background thread (recording Rerun unless --no-rrd). The app is an `Observer` of the trainer:
-events are copied in the trainer's thread and drawn by a UI thread a few times a second; it acts
-on training only through the trainer's public methods (render, point_cloud, pause, resume, stop).
+background thread (viz/training_session.py: start, restart, stop; recording Rerun unless
+--no-rrd). The app is an `Observer` of the trainer: events are copied in the trainer's thread and
+drawn by a UI thread a few times a second; it acts on training only through the trainer's public
+methods (render, point_cloud, pause, resume, stop).
 All renders go through one duty-cycled `RenderWorker`, so browsers never stall training for long.
 
 The app is the `RunView` (viz/run_view.py) its panels read. Panels: viser_train (the Train tab),
@@ -22,7 +23,7 @@ import threading
 import time
 import warnings
 import webbrowser
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,17 +33,16 @@ from flipviz.data import SceneData, load_scene
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.errors import UserError
-from flipviz.files import inside_roots, next_free, signals_deferred
+from flipviz.files import inside_roots, signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
-from flipviz.training.artifacts import prune_checkpoints
-from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig, with_preset
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
 from flipviz.viz.gui_thread import on_gui_thread, thread_safe_pushes
 from flipviz.viz.run_curves import RunCurves
+from flipviz.viz.training_session import TrainingSession, train_config
 from flipviz.viz.viser_common import plane_to_arg
 from flipviz.viz.viser_compare import ComparePanel, finished_runs
 from flipviz.viz.viser_mirror import MirrorLesson
@@ -106,15 +106,6 @@ class AppConfig(TrainConfig):
     beside this app's run folders and --data. Anything else typed in the browser is refused."""
 
 
-def train_config(cfg: TrainConfig) -> TrainConfig:
-    """The plain TrainConfig part of an AppConfig (what the trainer and its run folder see)."""
-    return TrainConfig(**{f.name: getattr(cfg, f.name) for f in fields(TrainConfig)})
-
-
-def _scene_key(cfg: TrainConfig) -> tuple:
-    return (cfg.scene, str(cfg.data) if cfg.data is not None else None, cfg.res)
-
-
 def check_host(host: str, port: int) -> None:
     """The address can be served on (viser moves on to the next free port, but not to another host)."""
     import socket
@@ -158,10 +149,8 @@ class App(Observer):
     """Viser server + background trainer + GUI. Start with `start()`, end with `stop()`."""
 
     def __init__(self, cfg: AppConfig, scene: SceneData | None = None) -> None:
-        self.cfg = cfg
-        self._base_out = cfg.out  # restarts write beside it: <out>-restart1, <out>-restart2, ...
-        self._first = cfg  # the command line's settings (browse roots); self.cfg follows restarts
-        self._preloaded = (_scene_key(cfg), scene) if scene is not None else None  # for the first run
+        self._first = cfg  # the command line's settings (browse roots); the session's cfg follows restarts
+        self.session = TrainingSession(cfg, observers=[self], scene=scene)
         thread_safe_pushes()  # the render worker, callbacks and the UI tick all write to the browsers
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, label="flipviz", verbose=False)
         self._set_initial_camera(np.zeros(3), 4.0)
@@ -170,19 +159,10 @@ class App(Observer):
         self.url = f"http://{shown}:{self.port}"
         self.worker = RenderWorker(cfg.render_duty)
         self.scene = RunScene(self.server)
-        self.trainer = None  # flipviz.training.trainer.Trainer of the current run
         self.setup: SetupEvent | None = None
         self.mirror_c2w: np.ndarray | None = None
         self.step = 0
-        self.status = "starting"
-        self.message = ""
-        self.restarts = 0
-        self.run_dirs: list[Path] = []  # every run folder this app wrote, in order
-        self._thread: threading.Thread | None = None
-        self._run_lock = threading.Lock()  # serialises start / restart / stop
-        self._trainer_lock = threading.Lock()
-        self._gen = 0  # run generation: bumped whenever a run is stopped
-        self._ev_lock = threading.Lock()
+        self._ev_lock = threading.Lock()  # the events the trainer's thread hands to the UI thread
         self._pending_setup: SetupEvent | None = None
         self._last_step: StepEvent | None = None
         self._last_images: ImagesEvent | None = None
@@ -314,14 +294,36 @@ class App(Observer):
         self.mirror.set_snapped(True)
         self.views.snap(client.client_id, Snapped(cam, reference, name))
 
+    # ---- the run: viz/training_session.py owns its lifecycle ----------------------------------
+    @property
+    def cfg(self) -> AppConfig:
+        return self.session.cfg
+
+    @property
+    def trainer(self):
+        return self.session.trainer
+
+    @property
+    def status(self) -> str:
+        return self.session.status
+
+    @property
+    def message(self) -> str:
+        return self.session.message
+
+    @property
+    def restarts(self) -> int:
+        return self.session.restarts
+
+    @property
+    def run_dirs(self) -> list[Path]:
+        return self.session.run_dirs
+
     def _run_dir(self) -> Path | None:
-        trainer = self.trainer
-        return trainer.run_dir if trainer is not None else None
+        return self.session.run_dir()
 
     def _previous_run(self) -> Path | None:
-        """The newest run folder this app trained before the current one that still holds its checkpoint."""
-        current = self._run_dir()
-        return next((d for d in reversed(self.run_dirs) if d != current and (d / CHECKPOINT_NAME).is_file()), None)
+        return self.session.previous_run()
 
     def _scene(self) -> SceneData | None:
         trainer = self.trainer
@@ -334,8 +336,8 @@ class App(Observer):
     def browse_roots(self) -> list[Path]:
         """The folders a browser may name (AppConfig.browse_root): all were given on the command line."""
         roots = {Path("runs"), *(d.parent for d in self.run_dirs), *self._first.browse_root}
-        if self._base_out is not None:
-            roots.add(Path(self._base_out).parent)
+        if self._first.out is not None:
+            roots.add(Path(self._first.out).parent)
         if self._first.data is not None:
             roots.add(Path(self._first.data))
         return sorted(roots)
@@ -347,75 +349,22 @@ class App(Observer):
     # ---- training control -------------------------------------------------------------------
     def start(self) -> App:
         self._ui_thread.start()
-        with self._run_lock:
-            self._start_run(self.cfg)
+        self.session.start()
         return self
 
-    def _start_run(self, cfg: AppConfig) -> None:
-        self.cfg = cfg
-        self.status, self.message, self.step = "starting", "", 0
-        self._thread = threading.Thread(
-            target=self._train_thread, args=(cfg, self._gen), name="flipviz-train", daemon=True
-        )
-        self._thread.start()
-
-    def _train_thread(self, cfg: AppConfig, gen: int) -> None:
-        from flipviz.training.trainer import Trainer
-
-        tcfg = train_config(cfg)
-        scene = self._preloaded[1] if self._preloaded and self._preloaded[0] == _scene_key(cfg) else None
-        try:
-            trainer = Trainer(tcfg, scene=scene)
-        except Exception as e:  # bad data / plane: show it, keep serving
-            self.status, self.message = "error", f"{type(e).__name__}: {e}".splitlines()[0]
-            log.error("could not start training: %s", self.message)
-            return
-        trainer.add_observer(self)
-        if not cfg.no_rrd:
-            try:
-                from flipviz.viz.rerun_observer import make_rerun_observer
-
-                trainer.add_observer(make_rerun_observer(tcfg, trainer.run_dir, bake=trainer.point_cloud))
-            except Exception as e:
-                log.warning("Rerun recording disabled: %s: %s", type(e).__name__, e)
-        with self._trainer_lock:
-            if gen != self._gen:  # stopped or restarted while the trainer was being built
-                return
-            self.trainer = trainer
-            self.run_dirs.append(trainer.run_dir)
-        self.on_setup(trainer.setup_event)
-        self.status = "running"
-        trainer.run()
-
     def pause(self) -> None:
-        if self.trainer is not None and self.status == "running":
-            self.trainer.pause()
-            self.status = "paused"
-            self.train.set_controls(self.status)
+        self.session.pause()
+        self.train.set_controls(self.status)
 
     def resume(self) -> None:
-        if self.trainer is not None and self.status == "paused":
-            self.trainer.resume()
-            self.status = "running"
-            self.train.set_controls(self.status)
+        self.session.resume()
+        self.train.set_controls(self.status)
+        if self.status == "running":
             self.preview.request()
-
-    def _stop_run(self) -> None:
-        """Stop the trainer thread and wait for it (the trainer saves its checkpoint). A trainer
-        still being built (loading, ray casting) is not waited for: it has nothing to save, will not
-        start, and its daemon thread ends with the app."""
-        with self._trainer_lock:
-            self._gen += 1  # a trainer still being built will not start
-            trainer = self.trainer
-        if trainer is not None:
-            trainer.stop()
-            if self._thread is not None:
-                self._thread.join()
-        self.trainer = None
 
     def building(self) -> bool:
         """A trainer is still being built (scene loading, ray casting) in the training thread."""
-        return self.trainer is None and self._thread is not None and self._thread.is_alive()
+        return self.session.building()
 
     def restart_with(self, choice: RunChoice) -> None:
         """Restart with the Train tab's choice of scene (or data folder), method, configuration, steps."""
@@ -436,45 +385,30 @@ class App(Observer):
         self.restart(replace(self.cfg, mirror_plane=plane_to_arg(plane), method=method))
 
     def restart(self, cfg: AppConfig) -> None:
-        """Stop the current run and train `cfg` from scratch in a new run folder; resets the scene.
+        """Stop the current run and train `cfg` from scratch in a new run folder (TrainingSession.restart),
+        the views cleared in between."""
+        if self._closing.is_set():
+            return
+        self.train.set_controls("restarting")
+        self.session.restart(cfg, on_stopped=self._clear_run)
 
-        The replaced run keeps its metrics, renders and recording, and its checkpoint while the
-        replaced runs' checkpoints fit --restart-checkpoints-mb (the oldest go first).
-        """
-        with self._run_lock:
-            if self._closing.is_set():
-                return
-            self.restarts += 1
-            self.status = "restarting"
-            self.train.set_controls(self.status)
-            self._update_progress(None)
-            self._stop_run()
-            for ckpt in prune_checkpoints(self.run_dirs, self.cfg.restart_checkpoints_mb * 1e6):
-                log.info("deleted %s (over --restart-checkpoints-mb)", ckpt)
-            self.worker.cancel(lambda k: True)
-            self.scene.clear()
-            self.mirror.clear()
-            self.preview.clear()
-            self.novel.reset()
-            self.probe.clear()
-            self.compare.clear()
-            with self._ev_lock:
-                self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = (
-                    None,
-                    None,
-                    None,
-                    None,
-                    None,
-                )
-                self._curves = None
-            out = None if self._base_out is None else next_free(f"{self._base_out}-restart{self.restarts}")
-            self._start_run(replace(cfg, out=out, resume=None, rrd=None))
+    def _clear_run(self) -> None:
+        """Forget the stopped run: its renders, 3D scene, panels and buffered events."""
+        self.worker.cancel(lambda k: True)
+        self.scene.clear()
+        self.mirror.clear()
+        self.preview.clear()
+        self.novel.reset()
+        self.probe.clear()
+        self.compare.clear()
+        with self._ev_lock:
+            self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = None, None, None, None, None
+            self._curves = None
 
     def stop(self) -> None:
         """Stop training (joined: checkpoint and recording flushed), the renders and the server."""
         self._closing.set()
-        with self._run_lock:
-            self._stop_run()
+        self.session.stop()
         self.compare.stop()
         self.worker.stop()
         if self._ui_thread.is_alive():
@@ -521,13 +455,7 @@ class App(Observer):
                     self._curves.add_test(event.step, self._test_psnr)
 
     def on_end(self, event: EndEvent) -> None:
-        self.step = event.step
-        self.status = event.status
-        self.message = event.message
-        if "psnr" in event.metrics:
-            self.message = f"unobserved views PSNR {event.metrics['psnr']:.2f} dB" + (
-                f" ({event.message})" if event.message else ""
-            )
+        self.step = event.step  # the status and its message: TrainingSession.on_end
 
     # ---- UI thread --------------------------------------------------------------------------
     def _ui_loop(self, period: float = 0.25) -> None:
