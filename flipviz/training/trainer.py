@@ -215,9 +215,8 @@ class Trainer:
             if self.model.update_schedule(field_step, cfg.steps):  # grids upsampled: new parameters
                 self.opt_field = self.model.make_optimizer()
         self.model.adjust_lr(self.opt_field, field_step, cfg.steps)
-        idx = self.flip.sample(
-            cfg.batch_rays, self._gen, self.step
-        )  # (R,): the inputs' alone before the mirrors join, after a drop
+        # (R,) random pixels: the inputs' alone before the mirrors join, and after a drop
+        idx = self.flip.sample(cfg.batch_rays, self._gen, self.step)
         view = bank.view[idx]
         o, d = rays_from_c2w(self.current_poses()[view], bank.dirs_cam[idx])  # (R, 3) each
         out = self.model.render_rays(o, d, training=True)

@@ -72,12 +72,9 @@ class OneLineErrors(logging.Filter):
 
 for _name in ("websockets.server", "asyncio"):
     logging.getLogger(_name).addFilter(OneLineErrors())
-warnings.filterwarnings(
-    "ignore", message=r"\[viser\] .* does not match annotation"
-)  # a client's value of the wrong type
-warnings.filterwarnings(
-    "ignore", message=r"Queued a \w+ on a closed connection"
-)  # a render for a client that just left
+# a client's value of the wrong type; a render for a client that just left
+warnings.filterwarnings("ignore", message=r"\[viser\] .* does not match annotation")
+warnings.filterwarnings("ignore", message=r"Queued a \w+ on a closed connection")
 
 
 @dataclass
@@ -403,7 +400,7 @@ class App(Observer):
         self.compare.clear()
         with self._ev_lock:
             self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = None, None, None, None, None
-            self._curves = None
+            self._curves, self.step = None, 0
 
     def stop(self) -> None:
         """Stop training (joined: checkpoint and recording flushed), the renders and the server."""
