@@ -161,7 +161,7 @@ class ViserTestClient:
         await self.send("TransformControlsUpdateMessage", name=name, wxyz=wxyz, position=position, owner="")
         await self.send("TransformControlsDragEndMessage", name=name, owner="")
 
-    async def wait_for(self, pred: Callable[[dict], bool], timeout: float = 20.0, start: int = 0) -> dict:
+    async def wait_for(self, pred: Callable[[dict], bool], timeout: float = 60.0, start: int = 0) -> dict:
         """The first message (from index `start`) satisfying `pred`; raises TimeoutError."""
         deadline = time.monotonic() + timeout
         i = start
@@ -179,7 +179,7 @@ class ViserTestClient:
             except TimeoutError:
                 pass
 
-    async def wait_gui(self, label: str, timeout: float = 20.0) -> dict:
+    async def wait_gui(self, label: str, timeout: float = 60.0) -> dict:
         deadline = time.monotonic() + timeout
         while label not in self.gui:
             if time.monotonic() > deadline:
