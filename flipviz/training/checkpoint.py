@@ -93,3 +93,20 @@ def load_checkpoint(path: Path | str, map_location: str | torch.device = "cpu") 
 def state_is_finite(state_dict: dict) -> bool:
     """True when every floating tensor in a (possibly nested) state dict is finite."""
     return all(not t.is_floating_point() or bool(torch.isfinite(t).all()) for t in tensors(state_dict))
+
+
+# What a crafted or foreign checkpoint raises while a run reads it back: each becomes one line.
+MISFIT = (KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
+
+
+def counter(state: dict, key: str, default: int | None = None) -> int:
+    """The checkpoint's step counter `key` (step, field_start): a whole number >= 0, else ValueError."""
+    value = state[key] if default is None else state.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"{key} {value!r} is not a whole number >= 0")
+    return value
+
+
+def misfit_reason(e: BaseException) -> str:
+    """One of MISFIT in a few words, for the one line a bad checkpoint gets."""
+    return f"missing {e}" if isinstance(e, KeyError) else (str(e).splitlines() or [type(e).__name__])[0][:120]

@@ -25,7 +25,7 @@ from flipviz.errors import UserError
 from flipviz.model import RadianceModel
 from flipviz.training import flip
 from flipviz.training.artifacts import PLANE_FILE
-from flipviz.training.checkpoint import checkpoint_path, load_checkpoint
+from flipviz.training.checkpoint import MISFIT, checkpoint_path, counter, load_checkpoint, misfit_reason
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import SetupEvent
 from flipviz.training.methods import TrainView, method_spec
@@ -107,16 +107,12 @@ def open_run(run: Path | str, device: str | None = None, scene: SceneData | None
         poses = _mirror_poses(state, spec.mirrors, len(mirrors.views))
         if spec.mirrors and poses is None:  # dropped at setup: its plane was doubted (--unconfident-plane drop)
             spec = spec.without_mirrors()
-        start, step = state.get("field_start", 0), state["step"]
-        for name, value in (("field_start", start), ("step", step)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"{name} {value!r} is not a whole number >= 0")
+        start, step = counter(state, "field_start", 0), counter(state, "step")
         model = fresh_model(cfg, scene, with_beta=spec.uses_beta and start == 0)  # a restarted field has none
         model.load_state_dict(state["model"])
         seconds = float(state.get("train_seconds", 0.0))
-    except (KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError) as e:
-        what = f"missing {e}" if isinstance(e, KeyError) else (str(e).splitlines() or [type(e).__name__])[0][:120]
-        raise UserError(f"cannot open {path}: it does not fit its own run ({what})") from None
+    except MISFIT as e:
+        raise UserError(f"cannot open {path}: it does not fit its own run ({misfit_reason(e)})") from None
     views = flip.mirrored_train_views(spec, mirrors, scene.bbox) if poses is not None else []
     event = setup_event(path.parent.name, cfg, scene, split, mirrors, spec.mirrors, estimate)
     return Run(path.parent, cfg, scene, split, model, views, poses, step, seconds, event)

@@ -432,26 +432,20 @@ class Trainer:
                     f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {getattr(self.cfg, key)!r}"
                 )
         try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
-            start = state.get("field_start", 0)
-            if isinstance(start, bool) or not isinstance(start, int) or start < 0:
-                raise ValueError(f"field_start {start!r} is not a whole number >= 0")
+            start = ckpt.counter(state, "field_start", 0)
             if start > 0:  # the field was restarted after the mirrors were dropped: no variance head
                 self._new_field(start)
             self.model.load_state_dict(state["model"])
             self.opt_field = self.model.make_optimizer()
             self.opt_field.load_state_dict(state["opt_field"])
             self.flip.load_state_dict(state)
-            step, seconds = state["step"], float(state.get("train_seconds", 0.0))
-            if isinstance(step, bool) or not isinstance(step, int) or step < 0:
-                raise ValueError(f"step {step!r} is not a whole number >= 0")
-            self.step, self.train_seconds = step, seconds
+            self.step, self.train_seconds = ckpt.counter(state, "step"), float(state.get("train_seconds", 0.0))
             if state.get("rng") is not None:
                 self._gen.set_state(state["rng"])
             if state.get("torch_rng") is not None:
                 torch.set_rng_state(state["torch_rng"])
-        except (KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError) as e:
-            what = f"missing {e}" if isinstance(e, KeyError) else (str(e).splitlines() or [type(e).__name__])[0][:120]
-            raise UserError(f"cannot resume: {path} does not fit this run ({what})") from None
+        except ckpt.MISFIT as e:
+            raise UserError(f"cannot resume: {path} does not fit this run ({ckpt.misfit_reason(e)})") from None
 
     # ------------------------------------------------------------------ events
     def _emit(self, name: str, event) -> None:

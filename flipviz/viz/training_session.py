@@ -41,13 +41,21 @@ class TrainingSession(Observer):
     """The current run of the app and its lifecycle: status is starting | running | paused |
     restarting | finished | stopped | error (the trainer's end status, or why it could not start)."""
 
-    def __init__(self, cfg: TrainConfig, observers: Sequence[Observer], scene: SceneData | None = None) -> None:
+    def __init__(
+        self,
+        cfg: TrainConfig,
+        observers: Sequence[Observer],
+        scene: SceneData | None = None,
+        checkpoints_mb: float = 0.0,
+    ) -> None:
+        """`checkpoints_mb`: the disk the replaced runs' checkpoints may keep (--restart-checkpoints-mb)."""
         self.cfg = cfg  # the current run's settings (an AppConfig in the app)
         self.trainer = None  # flipviz.training.trainer.Trainer of the current run, once built
         self.status, self.message = "starting", ""
         self.restarts = 0
         self.run_dirs: list[Path] = []  # every run folder this session wrote, in order
         self._observers = list(observers)
+        self._checkpoints_bytes = checkpoints_mb * 1e6
         self._base_out = cfg.out  # restarts write beside it: <out>-restart1, <out>-restart2, ...
         self._preloaded = (_scene_key(cfg), scene) if scene is not None else None  # for the first run
         self._lock = threading.Lock()  # start / restart / stop, and a built trainer taking over
@@ -64,15 +72,14 @@ class TrainingSession(Observer):
         """Stop the current run and train `cfg` from scratch in a new run folder; `on_stopped` runs
         between the two (the app clears its views). The replaced run keeps its metrics, renders and
         recording, and its checkpoint while the replaced runs' checkpoints fit
-        cfg.restart_checkpoints_mb (the oldest go first). False when the session is closed."""
+        `checkpoints_mb` (the oldest go first). False when the session is closed."""
         with self._lock:
             if self._closed:
                 return False
             self.restarts += 1
             self.status = "restarting"
             self._stop_run()
-            budget = getattr(self.cfg, "restart_checkpoints_mb", 0.0) * 1e6
-            for ckpt in prune_checkpoints(self.run_dirs, budget):
+            for ckpt in prune_checkpoints(self.run_dirs, self._checkpoints_bytes):
                 log.info("deleted %s (over --restart-checkpoints-mb)", ckpt)
             on_stopped()
             out = None if self._base_out is None else next_free(f"{self._base_out}-restart{self.restarts}")
@@ -85,15 +92,21 @@ class TrainingSession(Observer):
             self._closed = True
             self._stop_run()
 
-    def pause(self) -> None:
-        if self.trainer is not None and self.status == "running":
-            self.trainer.pause()
-            self.status = "paused"
+    def pause(self) -> bool:
+        """Pause a running run; False when there was none to pause."""
+        if self.trainer is None or self.status != "running":
+            return False
+        self.trainer.pause()
+        self.status = "paused"
+        return True
 
-    def resume(self) -> None:
-        if self.trainer is not None and self.status == "paused":
-            self.trainer.resume()
-            self.status = "running"
+    def resume(self) -> bool:
+        """Resume a paused run; False when there was none to resume."""
+        if self.trainer is None or self.status != "paused":
+            return False
+        self.trainer.resume()
+        self.status = "running"
+        return True
 
     def building(self) -> bool:
         """A trainer is still being built (scene loading, ray casting) in the training thread."""
@@ -130,7 +143,7 @@ class TrainingSession(Observer):
         trainer.add_observer(self)
         for obs in self._observers:
             trainer.add_observer(obs)
-        if not getattr(cfg, "no_rrd", True):
+        if not cfg.no_rrd:
             try:
                 from flipviz.viz.rerun_observer import make_rerun_observer
 

@@ -147,7 +147,7 @@ class App(Observer):
 
     def __init__(self, cfg: AppConfig, scene: SceneData | None = None) -> None:
         self._first = cfg  # the command line's settings (browse roots); the session's cfg follows restarts
-        self.session = TrainingSession(cfg, observers=[self], scene=scene)
+        self.session = TrainingSession(cfg, [self], scene, checkpoints_mb=cfg.restart_checkpoints_mb)
         thread_safe_pushes()  # the render worker, callbacks and the UI tick all write to the browsers
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, label="flipviz", verbose=False)
         self._set_initial_camera(np.zeros(3), 4.0)
@@ -350,13 +350,12 @@ class App(Observer):
         return self
 
     def pause(self) -> None:
-        self.session.pause()
-        self.train.set_controls(self.status)
+        if self.session.pause():
+            self.train.set_controls(self.status)
 
     def resume(self) -> None:
-        self.session.resume()
-        self.train.set_controls(self.status)
-        if self.status == "running":
+        if self.session.resume():
+            self.train.set_controls(self.status)
             self.preview.request()
 
     def building(self) -> bool:
