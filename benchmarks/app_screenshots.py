@@ -198,7 +198,7 @@ def agreement_shot(args: Args) -> None:
         with chromium() as d:
             open_page(d, app.port, settle_s=5.0)
             tab(d, "Mirror")
-            wait_until(lambda: "Mirrors dropped" in app.mirror.gate_text.content, 60, what="the gate's verdict")
+            wait_until(lambda: "Mirrors dropped" in app.mirror.curves.verdict.content, 60, what="the gate's verdict")
             chart = d.find_element("xpath", "//*[starts-with(normalize-space(), 'Mirrors vs inputs')]")
             d.execute_script("arguments[0].scrollIntoView({block: 'center'});", chart)  # the ratio, the limit, the drop
             time.sleep(4.0)

@@ -270,7 +270,7 @@ def test_the_estimated_plane_is_shown_beside_the_dragged_one(app):
             n = len(c.messages)
             await c.click("Estimate plane")
             await c.wait_for(lambda m: "Already estimated when this run started" in str(m), start=n, timeout=60)
-            assert not app.mirror._estimating.locked()
+            assert not app.mirror.estimate._busy.locked()
 
     run(go())
 
@@ -582,7 +582,7 @@ def test_the_curves_plot_the_unobserved_views_the_mirrors_and_the_plane(app):
     assert len(poses["props"]["series"]) == 1 + n_mirrors
     assert [s["label"] for s in plane["props"]["series"]] == ["step", "angle (deg)", "offset (units)"]
     deadline = time.monotonic() + 120
-    while not (np.isfinite(app.train.plot.data[2]).sum() >= 1 and app.mirror.plane_plot.visible):
+    while not (np.isfinite(app.train.plot.data[2]).sum() >= 1 and app.mirror.curves.plane.visible):
         assert time.monotonic() < deadline, "no test evaluation or plane curve was plotted"
         time.sleep(0.2)
     x, train, test = app.train.plot.data
@@ -590,11 +590,11 @@ def test_the_curves_plot_the_unobserved_views_the_mirrors_and_the_plane(app):
         evals = dict(app._curves.test)
     assert len(x) >= 2 and np.all(np.diff(x) > 0) and np.isfinite(train).sum() >= 2
     assert {float(s): float(p) for s, p in zip(x, test) if np.isfinite(p)} == pytest.approx(evals)
-    data = app.mirror.pose_plot.data  # the chair's true plane is known: the error against the exact reflections
-    assert app.mirror.pose_plot.title.startswith("Mirrored cameras: rotation error") and len(data) == 1 + n_mirrors
+    data = app.mirror.curves.poses.data  # the chair's true plane is known: the error against the exact reflections
+    assert app.mirror.curves.poses.title.startswith("Mirrored cameras: rotation error") and len(data) == 1 + n_mirrors
     assert all(np.isfinite(d).all() and (d >= 0).all() for d in data[1:])
-    steps, deg, off = app.mirror.plane_plot.data
-    assert app.mirror.plane_plot.title == "Mirror plane: error vs the true plane"
+    steps, deg, off = app.mirror.curves.plane.data
+    assert app.mirror.curves.plane.title == "Mirror plane: error vs the true plane"
     assert (deg >= 0).all() and (off >= 0).all() and deg.max() < 45
 
 
@@ -983,7 +983,7 @@ def test_the_plane_chart_draws_a_peak_at_0_or_180_whole_in_the_middle():
     180): the chart runs 90 degrees either side of the estimate."""
     from flipviz.geometry.symmetry import PlaneEstimate
     from flipviz.viz import palette
-    from flipviz.viz.viser_mirror import score_chart
+    from flipviz.viz.viser_estimate import score_chart
 
     az = np.arange(0.0, 180.0, 2.0)
     d = (az - 179.0 + 90.0) % 180.0 - 90.0  # circular distance to 179 degrees
@@ -1142,7 +1142,7 @@ def test_the_live_preview_is_drawn_as_gaussian_splats_one_per_cell(app):
             )  # the step in flight ends
             app.preview.request()  # a bake of the paused field, then none (the step does not change)
             t = time.monotonic()
-            while (app.preview.baked or {}).get("step") != app.preview.step():
+            while (app.preview.baked or {}).get("step") != app.step:
                 assert time.monotonic() - t < 60, "no bake of the paused field"
                 await asyncio.sleep(0.1)
             await c.wait_gui("Preview drawn as")

@@ -61,6 +61,15 @@ def test_the_app_in_the_paper_preset_trains_the_papers_50k_steps():
     )
 
 
+def test_the_app_trains_at_200_px_and_the_command_line_at_100():
+    """The app's 3000 steps gain from 200 px (docs/results/resolution); `flipviz train`'s 600 do not, and
+    the bench's tables are at 100 px. Every preset keeps each one's width; --res still wins."""
+    assert parse_command(["app"]).res == 200 and parse_command(["train"]).res == 100
+    assert parse_command(["bench"]).res == 100
+    assert parse_command(["app", "--preset", "paper"]).res == 200
+    assert parse_command(["app", "--res", "100"]).res == 100
+
+
 @pytest.mark.skipif(not (LEGO / "transforms_test.json").is_file(), reason="needs the NeRF-synthetic lego")
 @pytest.mark.skipif(shutil.which("timeout") is None, reason="needs coreutils' timeout")
 @pytest.mark.slow

@@ -84,6 +84,11 @@ class AppConfig(TrainConfig):
     steps: int = 3000
     """Optimisation steps. More than `flipviz train`'s 600, so that a newcomer watches training
     happen (about 2-3 minutes on 2 cores); the Train tab restarts with any other count."""
+    res: int = 200
+    """Image width in pixels, 8..1024 (at most the data's own). Twice `flipviz train`'s 100 px: over the
+    app's 3000 steps, training at 200 px scored +2.5 dB (Upper) and +0.8 dB (B/L) at 200 px on held-out
+    views of the chair that the protocol never uses, in the same training time (the grid stays 64^3 ->
+    128^3; docs/results/resolution). At 600 steps it bought nothing consistent (-0.2 to +0.4 dB)."""
     port: int = 8080
     """Port of the web app (the next free one is used when it is busy)."""
     host: str = "127.0.0.1"
@@ -169,17 +174,7 @@ class App(Observer):
         self._closing = threading.Event()
         self._ui_thread = threading.Thread(target=self._ui_loop, name="flipviz-ui", daemon=True)
         self._build_gui()
-        self.views = ViewportRenderer(
-            self.worker,
-            self.render,
-            lambda: self.status == "running",
-            preview_shown=lambda: self.preview.on,
-            depth_range=self._depth_range,
-            max_width=cfg.view_width,
-            on_unsnap=self._on_unsnap,
-            show_preview=self.preview.set_visible,
-            compare=self.compare.compose,
-        )
+        self.views = ViewportRenderer(self.worker, self, self.preview, self.compare, self._on_unsnap, cfg.view_width)
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
 
@@ -216,9 +211,7 @@ class App(Observer):
         with tabs.add_tab("Show", viser.Icon.EYE):
             gui.add_image(palette.legend_image(), label="Colours", format="png")
             with gui.add_folder("3D preview"):
-                self.preview = LivePreview(
-                    self.server, self.worker, self._bake, lambda: self.status == "running", lambda: self.step
-                )
+                self.preview = LivePreview(self.server, self.worker, self)
             with gui.add_folder("Scene"):
                 self.group_boxes = {
                     g: gui.add_checkbox(label, self.scene.visible[g]) for g, (label, _) in GROUPS.items()
@@ -276,14 +269,6 @@ class App(Observer):
         self.views.remove_client(client.client_id)
         self.preview.remove_client(client.client_id)
 
-    def _depth_range(self) -> tuple[float, float]:
-        """Depth colour range: the scene box seen from the fitted sphere's radius."""
-        s = self.setup
-        if s is None:
-            return (2.0, 6.0)
-        half = 0.5 * float(np.linalg.norm(s.bbox[1] - s.bbox[0]))
-        return (round(max(0.0, s.sphere_radius - half), 2), round(s.sphere_radius + half, 2))
-
     def _snap_client(self, client: viser.ClientHandle, cam: Camera, reference: np.ndarray | None, name: str) -> None:
         from flipviz.viz.viser_render import Snapped
 
@@ -339,7 +324,11 @@ class App(Observer):
             roots.add(Path(self._first.data))
         return sorted(roots)
 
-    def _bake(self) -> dict | None:
+    @property
+    def training(self) -> bool:
+        return self.status == "running"
+
+    def point_cloud(self) -> dict | None:
         trainer = self.trainer
         return trainer.point_cloud() if trainer is not None else None
 
@@ -481,7 +470,7 @@ class App(Observer):
             with self._ev_lock:  # the curves the trainer's thread adds to, read under its lock (a few ms)
                 if self._curves is not None:
                     self.train.set_plot(self._curves.psnr_data())
-                    self.mirror.set_curves(self._curves)
+                    self.mirror.curves.set_curves(self._curves)
             self.compare.show_status()
             self._last_plot = now
         if images is not None:

@@ -7,12 +7,14 @@ at its centre) and shows them as preview frustums
 carrying the flipped images. A button restarts training with that plane. The consistency score
 of a mirrored view is the PSNR of the current model rendered from that camera against its
 flipped image: low where the symmetry assumption fails.
+
+The tab's other parts live apart: the estimated plane (viser_estimate.py: PlaneEstimatePanel) and
+the charts over training with the agreement gate's verdict (viser_mirror_curves.py: MirrorCurves).
 """
 
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 
 import numpy as np
@@ -23,11 +25,10 @@ from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
 from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
 from flipviz.geometry.sphere import Sphere
-from flipviz.geometry.symmetry import CONFIDENT, PlaneEstimate, plane_error
+from flipviz.geometry.symmetry import plane_error
 from flipviz.training.evaluate import image_psnr
 from flipviz.training.events import ImagesEvent, SetupEvent
 from flipviz.viz import palette
-from flipviz.viz.run_curves import RunCurves
 from flipviz.viz.run_view import RunView
 from flipviz.viz.viser_common import (
     error_map,
@@ -37,7 +38,9 @@ from flipviz.viz.viser_common import (
     thumbnail,
     to_viser_pose,
 )
+from flipviz.viz.viser_estimate import PlaneEstimatePanel
 from flipviz.viz.viser_guard import guard_choice, guard_number, guard_vector
+from flipviz.viz.viser_mirror_curves import MirrorCurves
 from flipviz.viz.viser_render import RenderWorker
 from flipviz.viz.viser_scene import RunScene, plane_quad
 
@@ -57,47 +60,66 @@ where; then restart training with the new plane."""
 
 FRUSTUM_IMAGES = ("flipped image", "disagreement", "beta^2")
 PLANE_LIMIT = 1e3  # a typed plane point or normal component (scene units)
-ESTIMATE_HELP = (
-    "_No estimate yet. **Estimate plane** finds the mirror plane from the input views alone (a short B/L fit, "
-    "then the reflection that maps what the inputs saw onto itself), with a confidence._"
-)
-
-
-POSE_TITLES = {
-    True: "Mirrored cameras: rotation error (deg) vs their exact reflections",
-    False: "Mirrored cameras: rotation BA applied (deg)",
-}  # no true plane: what BA moved
-PLANE_TITLES = {True: "Mirror plane: error vs the true plane", False: "Mirror plane: change from its start"}
-AGREE_TITLE = "Mirrors vs inputs: squared error ratio on the object (dropped above the limit)"
-
-
-def score_chart(est: PlaneEstimate, up: np.ndarray, size: tuple[int, int] = (400, 240)) -> np.ndarray:
-    """uint8 RGB chart: the best score of the vertical planes against their normal's azimuth, the
-    estimate's azimuth marked (matplotlib, drawn off-screen). Azimuth is circular with period 180 (a
-    normal and its negative are one plane), so the axis runs 90 degrees either side of the estimate:
-    a peak at 0 / 180 is drawn whole, in the middle, not split across the two edges."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    az = azimuth_deg(est.plane.normal, up) % 180.0
-    x = az + (np.asarray(est.azimuth_deg) - az + 90.0) % 180.0 - 90.0  # each azimuth within 90 deg of the estimate
-    order = np.argsort(x)
-    fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
-    ax = fig.add_subplot()
-    ax.plot(x[order], np.asarray(est.azimuth_score)[order], color=palette.hex_color(palette.MIRROR_PLANE), lw=1.8)
-    ax.axvline(az, color="0.3", ls="--", lw=1)
-    ax.set(xlabel="normal azimuth about up (deg, mod 180)", ylabel="score", xlim=(az - 90.0, az + 90.0))
-    ax.set_title(f"estimate at {az:.1f} deg, confidence {est.confidence:.2f}", fontsize=9)
-    ax.tick_params(labelsize=8)
-    fig.tight_layout(pad=0.4)
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
 def plane_line(plane: Plane) -> str:
     p, n = np.round(plane.point, 2) + 0.0, np.round(plane.normal, 2) + 0.0  # + 0.0: no "-0.00"
     return f"Plane: point ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}), normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f})"
+
+
+class TypedPlane:
+    """The "Type the plane" folder: a vertical plane by its normal's azimuth about up (through the
+    sphere centre), or any plane by a point and a normal. It shows the plane in use; a plane typed
+    there goes to `on_plane`, a plane that is none (a zero normal) to `on_error`."""
+
+    def __init__(self, gui: viser.GuiApi, on_plane: Callable[[Plane], None], on_error: Callable[[str], None]) -> None:
+        with gui.add_folder("Type the plane"):
+            self.azimuth = guard_number(
+                gui.add_slider(
+                    "Vertical plane azimuth",
+                    -180.0,
+                    180.0,
+                    1.0,
+                    0.0,
+                    hint="Normal (cos a, sin a, 0), through the sphere centre",
+                ),
+                -180.0,
+                180.0,
+            )
+            self.point = guard_vector(gui.add_vector3("Plane point", (0.0, 0.0, 0.0), step=0.01), PLANE_LIMIT)
+            self.normal = guard_vector(gui.add_vector3("Plane normal", (1.0, 0.0, 0.0), step=0.01), PLANE_LIMIT)
+            apply = gui.add_button("Apply typed plane", icon=viser.Icon.CHECK)
+        self.on_plane, self.on_error = on_plane, on_error
+        self.shown: Plane | None = None  # the plane in use, as the fields show it
+        self.up, self.center = WORLD_UP.copy(), np.zeros(3)
+        self.azimuth.on_update(lambda _: self._typed_azimuth())
+        apply.on_click(lambda _: self._typed_plane())
+
+    def show(self, plane: Plane, up: np.ndarray, center: np.ndarray) -> None:
+        """The fields show `plane` (the run's up and sphere centre place a typed azimuth)."""
+        self.shown, self.up, self.center = plane, up, center
+        self.azimuth.value = self._azimuth(plane)  # (its callback sees the plane's own azimuth: no change)
+        self.point.value = tuple(round(float(x), 3) + 0.0 for x in plane.point)
+        self.normal.value = tuple(round(float(x), 3) + 0.0 for x in plane.normal)
+
+    def _azimuth(self, plane: Plane) -> float:
+        """The azimuth of the plane's normal about up, in the slider's range and step."""
+        return round((azimuth_deg(plane.normal, self.up) + 180.0) % 360.0 - 180.0, 1)
+
+    def _typed_azimuth(self) -> None:
+        if self.shown is None or abs(self._azimuth(self.shown) - float(self.azimuth.value)) < 0.05:
+            return  # no run yet, or the field shows the plane in use: nobody typed a new azimuth
+        a = np.radians(float(self.azimuth.value))
+        u, v = horizontal_basis(self.up)
+        self.on_plane(Plane(self.center, np.cos(a) * u + np.sin(a) * v))
+
+    def _typed_plane(self) -> None:
+        try:
+            plane = Plane(np.array(self.point.value, float), np.array(self.normal.value, float))
+        except ValueError as e:  # a zero normal
+            self.on_error(str(e))
+            return
+        self.on_plane(plane)
 
 
 class MirrorLesson:
@@ -116,28 +138,13 @@ class MirrorLesson:
         gui.add_markdown(LESSON)
         self.plane_text = gui.add_markdown("_No run yet._")
         self.refine_text = gui.add_markdown("")  # the plane as training refines it (--refine-plane)
-        self.gate_text = gui.add_markdown("")  # the agreement gate's verdict (training/flip.py: Agreement)
+        gate_text = gui.add_markdown("")  # the agreement gate's verdict (training/flip.py: Agreement)
         self.show_gizmo = gui.add_checkbox(
             "Show plane gizmo", False, hint="Drag its arrows and rings to move the plane"
         )
         self.show_preview = gui.add_checkbox("Show plane preview", True)
         self.show_plane = gui.add_checkbox("Show mirror plane", True, hint="The translucent square of the plane")
-        with gui.add_folder("Type the plane"):
-            self.azimuth = guard_number(
-                gui.add_slider(
-                    "Vertical plane azimuth",
-                    -180.0,
-                    180.0,
-                    1.0,
-                    0.0,
-                    hint="Normal (cos a, sin a, 0), through the sphere centre",
-                ),
-                -180.0,
-                180.0,
-            )
-            self.point_in = guard_vector(gui.add_vector3("Plane point", (0.0, 0.0, 0.0), step=0.01), PLANE_LIMIT)
-            self.normal_in = guard_vector(gui.add_vector3("Plane normal", (1.0, 0.0, 0.0), step=0.01), PLANE_LIMIT)
-            self.apply_btn = gui.add_button("Apply typed plane", icon=viser.Icon.CHECK)
+        self.typed = TypedPlane(gui, on_plane=self.set_plane, on_error=self._cannot)
         self.frustum_shows = guard_choice(
             gui.add_dropdown(
                 "Mirrored frustums show",
@@ -157,24 +164,8 @@ class MirrorLesson:
         self.reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         self.restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
         self.table = gui.add_markdown("_Scores appear with the first image event or Score mirrors._")
-        self.curves_folder = gui.add_folder("Over training", expand_by_default=True)  # plots built per run
-        self.pose_plot: viser.GuiUplotHandle | None = None
-        self.plane_plot: viser.GuiUplotHandle | None = None
-        self.agree_plot: viser.GuiUplotHandle | None = None
-        self._plotted: tuple = ((), (), ())  # (mirror, plane, agreement) data keys of the plots shown
-        with gui.add_folder("Estimated plane") as self.est_folder:
-            self.est_text = gui.add_markdown(ESTIMATE_HELP)
-            self.est_btn = gui.add_button(
-                "Estimate plane",
-                icon=viser.Icon.SEARCH,
-                hint="A short B/L fit of the inputs, then the reflection that maps it onto itself",
-            )
-            self.use_est_btn = gui.add_button("Use estimated plane", icon=viser.Icon.CHECK, disabled=True)
-        self.est_plot: viser.GuiImageHandle | None = None
-        self.estimate: PlaneEstimate | None = None
-        self._estimating = threading.Lock()
-        self.est_btn.on_click(lambda _: self._start_estimate())
-        self.use_est_btn.on_click(lambda _: self.estimate is not None and self.set_plane(self.estimate.plane))
+        self.curves = MirrorCurves(server, verdict=gate_text)  # charts over training (viser_mirror_curves.py)
+        self.estimate = PlaneEstimatePanel(server, run, lambda: self.train_plane, self.set_plane)  # viser_estimate.py
         self.up, self.pose = WORLD_UP.copy(), "reflect"  # the run's up and initial-pose rule
         self.inputs: list[Camera] = []
         self.flipped: list[np.ndarray] = []
@@ -195,8 +186,6 @@ class MirrorLesson:
         self.show_preview.on_update(lambda _: self._set_preview_visible())
         self.show_gizmo.on_update(lambda _: self._set_gizmo_visible())
         self.show_plane.on_update(lambda _: self._set_gizmo_visible())
-        self.azimuth.on_update(lambda _: self._typed_azimuth())
-        self.apply_btn.on_click(lambda _: self._typed_plane())
         self.frustum_shows.on_update(lambda _: self._show_frustum_images())
         self.last_images: ImagesEvent | None = None
         self.quad: viser.MeshHandle | None = None  # the mirror plane, drawn apart from its gizmo
@@ -275,101 +264,8 @@ class MirrorLesson:
             self.gizmo.on_update(self._on_gizmo)
             self._apply_plane(plane)
         self.table.content = "_Scores appear with the first image event or Score mirrors._"
-        self.show_estimate(setup.plane_estimate)
-        self._build_plots(setup)
-
-    def _build_plots(self, setup: SetupEvent) -> None:
-        """This run's curves (hidden until they have points): one line per mirrored camera, and the
-        plane's angle and offset when training refines it."""
-        for plot in (self.pose_plot, self.plane_plot, self.agree_plot):
-            if plot is not None:
-                plot.remove()
-        self.pose_plot = self.plane_plot = self.agree_plot = None
-        self._plotted = ((), (), ())
-        self.gate_text.content = ""
-        names = [c.source or c.camera.name for c in setup.cameras if c.kind == "mirror_init"]
-        if not names or setup.plane is None:
-            return
-        colors = [palette.hex_color(palette.series_color(i, len(names))) for i in range(len(names))]
-        with self.curves_folder:
-            self.pose_plot = self.server.gui.add_uplot(
-                (np.zeros(1), *np.zeros((len(names), 1))),
-                ({"label": "step"}, *({"label": n, "stroke": c, "width": 1.5} for n, c in zip(names, colors))),
-                title=POSE_TITLES[False],
-                scales={"x": {"time": False}},
-                aspect=1.6,
-                legend={"show": len(names) <= 8},
-                visible=False,
-            )
-            if self.refining:
-                self.plane_plot = self.server.gui.add_uplot(
-                    (np.zeros(1), np.zeros(1), np.zeros(1)),
-                    (
-                        {"label": "step"},
-                        {"label": "angle (deg)", "stroke": palette.hex_color(palette.MIRROR_PLANE), "width": 2},
-                        {
-                            "label": "offset (units)",
-                            "stroke": palette.hex_color(palette.TRUE_PLANE),
-                            "width": 2,
-                            "scale": "off",
-                        },
-                    ),
-                    title=PLANE_TITLES[False],
-                    scales={"x": {"time": False}, "off": {"auto": True}},
-                    aspect=1.6,
-                    axes=({}, {}, {"scale": "off", "side": 1, "grid": {"show": False}}),
-                    visible=False,
-                )
-            self.agree_plot = self.server.gui.add_uplot(
-                (np.zeros(1), np.zeros(1), np.zeros(1)),
-                (
-                    {"label": "step"},
-                    {"label": "mirrored / input", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
-                    {"label": "limit", "stroke": "#888888", "width": 1, "dash": [6, 4]},
-                ),
-                title=AGREE_TITLE,
-                scales={"x": {"time": False}, "y": {"auto": False, "range": [0.0, 1.0]}},
-                aspect=1.6,
-                visible=False,
-            )
-
-    def set_curves(self, curves: RunCurves) -> None:
-        """The run's curves (RunCurves' mirror, plane and agreement data); each sent only when it has a new
-        step. The agreement's y range is set here (uPlot's own range breaks on a leading NaN, and the
-        limit must stay in view); the gate's verdict goes in the text above the charts."""
-        poses, plane, agree = curves.mirror_data(), curves.plane_data(), curves.agreement_data()
-        key = tuple((len(d[0]), float(d[0][-1])) if d else () for d in (poses, plane, agree))
-        if key == self._plotted:
-            return
-        self._plotted = key
-        if curves.dropped_at is not None and curves.disagreement:
-            self.gate_text.content = (
-                f"**Mirrors dropped at step {curves.dropped_at}:** on the object their squared error was "
-                f"{curves.disagreement[-1]:.1f}x the inputs' (limit {curves.limit:g}), so they contradict what the "
-                "inputs saw. "
-                + (
-                    "A fresh field trains on the inputs alone, as B/L."
-                    if curves.restarted
-                    else "Training goes on with the inputs alone."
-                )
-            )
-        if self.agree_plot is not None and len(agree) == 3 and len(agree[0]) >= 2:
-            top = float(np.nanmax([*agree[1], curves.limit if np.isfinite(curves.limit) else 0.0]))
-            self.agree_plot.scales = {
-                "x": {"time": False},
-                "y": {"auto": False, "range": [0.0, float(np.ceil(top * 1.1 + 0.01))]},
-            }
-        for plot, data, title in (
-            (self.pose_plot, poses, POSE_TITLES[curves.mirror_vs_truth]),
-            (self.plane_plot, plane, PLANE_TITLES[curves.plane_vs_truth]),
-            (self.agree_plot, agree, AGREE_TITLE),
-        ):
-            if plot is None or len(data) < 2 or len(data[0]) < 2:
-                continue
-            if plot.title != title:
-                plot.title = title
-            plot.data = data
-            plot.visible = True
+        self.estimate.show(setup.plane_estimate)
+        self.curves.build(setup, self.refining)
 
     def clear(self) -> None:
         with self._lock:
@@ -396,32 +292,8 @@ class MirrorLesson:
         self.snapped = snapped
         self._set_gizmo_visible()
 
-    def _azimuth(self, plane: Plane) -> float:
-        """The azimuth of the plane's normal about up, in the slider's range and step."""
-        return round((azimuth_deg(plane.normal, self.up) + 180.0) % 360.0 - 180.0, 1)
-
-    def _show_typed(self, plane: Plane) -> None:
-        """The "Type the plane" fields show the plane in use."""
-        self.azimuth.value = self._azimuth(plane)  # (its callback sees the plane's own azimuth: no change)
-        self.point_in.value = tuple(round(float(x), 3) + 0.0 for x in plane.point)
-        self.normal_in.value = tuple(round(float(x), 3) + 0.0 for x in plane.normal)
-
-    def _typed_azimuth(self) -> None:
-        plane = self.plane
-        if plane is not None and abs(self._azimuth(plane) - float(self.azimuth.value)) < 0.05:
-            return  # the field shows the plane in use, nobody typed a new azimuth
-        if self.sphere is not None:
-            a = np.radians(float(self.azimuth.value))
-            u, v = horizontal_basis(self.up)
-            self.set_plane(Plane(self.sphere.center, np.cos(a) * u + np.sin(a) * v))
-
-    def _typed_plane(self) -> None:
-        try:
-            plane = Plane(np.array(self.point_in.value, float), np.array(self.normal_in.value, float))
-        except ValueError as e:  # a zero normal
-            self.plane_text.content = f"_Cannot use that plane: {e}._"
-            return
-        self.set_plane(plane)
+    def _cannot(self, why: str) -> None:
+        self.plane_text.content = f"_Cannot use that plane: {why}._"
 
     def set_plane(self, plane: Plane) -> None:
         """Move the gizmo (as if dragged) to `plane`."""
@@ -448,7 +320,7 @@ class MirrorLesson:
             if self.gizmo is not None and not self.moved:  # the gizmo, the typed fields and the plane in use follow
                 self.plane = plane
                 self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane), plane.point
-                self._show_typed(plane)
+                self.typed.show(plane, self.up, self.sphere.center)
                 self.plane_text.content = plane_line(plane) + " - the plane training uses now."
             if len(self.trail) > 1:
                 segs = np.stack([np.stack(self.trail[:-1]), np.stack(self.trail[1:])], axis=1)
@@ -520,7 +392,7 @@ class MirrorLesson:
                 for h in self.preview:
                     h.color = palette.CAMERA["mirror_init"]  # not scored for this plane yet
         self._set_preview_visible()
-        self._show_typed(plane)
+        self.typed.show(plane, self.up, self.sphere.center)
         same = (
             self.train_plane is not None
             and np.allclose(plane.point, self.train_plane.point)
@@ -556,79 +428,6 @@ class MirrorLesson:
     def restart(self) -> None:
         if self.plane is not None:
             self.on_restart(self.plane)
-
-    # ---- the estimated plane ----------------------------------------------------------------
-    def _start_estimate(self) -> None:
-        setup = self.run.setup
-        if setup is not None and setup.plane_estimate is not None and self.estimate is setup.plane_estimate:
-            self.show_estimate(self.estimate)  # the same inputs give the same plane: say so, at once
-            self.est_text.content = (
-                "_Already estimated when this run started (the same inputs give the same plane):_ "
-                + (self.est_text.content)
-            )
-            return
-        if not self._estimating.acquire(blocking=False):
-            return  # one estimate at a time
-        self.est_btn.disabled = True
-        done = threading.Event()
-
-        def tick() -> None:  # the time so far, every second: training shares the CPU, so it may take minutes
-            t0 = time.monotonic()
-            while not done.is_set():
-                self.est_text.content = (
-                    f"_Estimating: a short B/L fit of the inputs, then the plane search... "
-                    f"{time.monotonic() - t0:.0f} s (10-20 s on an idle CPU)_"
-                )
-                done.wait(1.0)
-
-        def work() -> None:
-            clock = threading.Thread(target=tick, name="flipviz-estimate-clock", daemon=True)
-            clock.start()
-            try:
-                est, error = self.run.estimate_plane(), None
-            except Exception as e:  # noqa: BLE001 - shown, never fatal
-                est, error = None, e
-            finally:
-                done.set()
-                clock.join()  # its last line never lands over the result
-                self.est_btn.disabled = False
-                self._estimating.release()
-            if error is None:
-                self.show_estimate(est)
-            else:
-                self.est_text.content = f"_Cannot estimate a plane: {error}_"
-
-        threading.Thread(target=work, name="flipviz-plane-estimate", daemon=True).start()
-
-    def show_estimate(self, est: PlaneEstimate | None) -> None:
-        """The estimate beside the plane being dragged: plane, confidence, score against azimuth."""
-        self.estimate = est
-        self.use_est_btn.disabled = est is None
-        if est is None:
-            self.est_text.content = ESTIMATE_HELP
-            return
-        n, p = est.plane.normal + 0.0, est.plane.point + 0.0
-        verdict = "confident" if est.confident else "**not confident: the object may not be mirror-symmetric**"
-        lines = [
-            f"Normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f}) through ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}); "
-            f"confidence **{est.confidence:.2f}** ({verdict}; trusted from {CONFIDENT:g}), {est.seconds:.0f} s.",
-        ]
-        if self.train_plane is not None:
-            deg, off = plane_error(est.plane, self.train_plane)
-            lines.append(f"Against the training plane: {deg:.1f} deg, offset {off:.3f}.")
-        lines.append(
-            "The chart: the best score of the vertical planes at each normal azimuth (about up); "
-            "one sharp peak for a symmetric object."
-        )
-        self.est_text.content = " ".join(lines)
-        chart = score_chart(est, self.up)
-        if self.est_plot is None:
-            with self.est_folder:
-                self.est_plot = self.server.gui.add_image(
-                    chart, label="Mirror-plane score against azimuth", format="png"
-                )
-        else:
-            self.est_plot.image = chart
 
     # ---- consistency scores -----------------------------------------------------------------
     def on_images(self, event: ImagesEvent) -> None:

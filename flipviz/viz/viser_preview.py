@@ -19,6 +19,7 @@ import numpy as np
 import viser
 
 from flipviz.viz import palette
+from flipviz.viz.run_view import RunView
 from flipviz.viz.splats import Splats, cells_to_splats, solid_splats
 from flipviz.viz.viser_guard import guard_choice
 from flipviz.viz.viser_render import BACKGROUND, RenderWorker
@@ -34,12 +35,10 @@ class LivePreview:
         self,
         server: viser.ViserServer,
         worker: RenderWorker,
-        bake: Callable[[], dict | None],
-        is_training: Callable[[], bool],
-        step: Callable[[], int],
+        run: RunView,
         period_s: float = 5.0,
     ) -> None:
-        self.server, self.worker, self.bake_fn, self.is_training, self.step = server, worker, bake, is_training, step
+        self.server, self.worker, self.run = server, worker, run
         self.period_s = period_s
         self.baked: dict | None = None
         self.visible: dict[int, bool] = {}  # client id -> cloud shown
@@ -77,15 +76,16 @@ class LivePreview:
         self.worker.submit("preview-bake", self._bake, priority=BACKGROUND, delay=delay)
 
     def _bake(self) -> None:
-        if self.on and (self.baked is None or self.baked.get("step") != self.step()):  # the model changed since
+        step = self.run.step
+        if self.on and (self.baked is None or self.baked.get("step") != step):  # the model changed since
             t = time.perf_counter()
-            baked = self.bake_fn()
+            baked = self.run.point_cloud()
             if baked is not None:
                 self.last_bake_s = time.perf_counter() - t
                 with self._lock:
-                    self.baked = dict(baked, step=self.step())
+                    self.baked = dict(baked, step=step)
                 self._apply_all()
-        if self.is_training():
+        if self.run.training:
             self.request(delay=self.period_s)
 
     def clear(self) -> None:

@@ -14,7 +14,8 @@ once it has been still for `settle_s`, progressively finer passes up to the clie
 resolution"; a camera move cancels the passes still to come. While training runs, the still view
 is refreshed every `refresh_s`. The background carries its depth, so frustums behind the object
 are hidden by it. A snapped view (`snap`) shows the view's ground truth, the render, their error
-or beta^2 in the view's own frame, blended as the client chooses.
+or beta^2 in the view's own frame, blended as the client chooses. It sees the run through `RunView`
+(run_view.py), and the 3D preview and the Compare tab through the two small protocols below.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import time
 import traceback
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import viser
@@ -33,6 +35,7 @@ import viser
 from flipviz.data.cameras import Camera
 from flipviz.data.images import to_uint8
 from flipviz.viz import palette
+from flipviz.viz.run_view import RunView, depth_range
 from flipviz.viz.viser_common import (
     OUTPUTS,
     ScalarView,
@@ -204,34 +207,46 @@ def pass_line(width: int, pass_idx: int, n_passes: int) -> str:
     return f"_Your view: full resolution, {width} px wide._"
 
 
+class Preview(Protocol):
+    """The browser-drawn 3D preview (viser_preview.LivePreview), shown while a camera moves."""
+
+    on: bool
+
+    def set_visible(self, client_id: int, visible: bool) -> None: ...
+
+
+class CompareView(Protocol):
+    """The Compare tab (viser_compare.ComparePanel): while on, its view of runs A and B replaces ours."""
+
+    def compose(
+        self, cam: Camera, out_a: dict, snapped: Snapped | None
+    ) -> tuple[np.ndarray, tuple | None, np.ndarray | None] | None:
+        """(background image, colour scale or None, depth or None), or None while Compare is off."""
+        ...
+
+
 class ViewportRenderer:
     """Renders each client's browser camera as its background image (progressive, canvas-sized)."""
 
     def __init__(
         self,
         worker: RenderWorker,
-        render: Callable[..., dict | None],
-        is_training: Callable[[], bool],
-        preview_shown: Callable[[], bool] = lambda: False,
-        depth_range: Callable[[], tuple[float, float]] = lambda: (2.0, 6.0),
+        run: RunView,
+        preview: Preview,
+        compare: CompareView,
+        on_unsnap: Callable[[], None],
         max_width: int = 800,
         settle_s: float = 0.25,
         refresh_s: float = 5.0,
-        on_unsnap: Callable[[], None] = lambda: None,
-        show_preview: Callable[[int, bool], None] = lambda client_id, visible: None,
-        compare: Callable[[Camera, dict, Snapped | None], tuple[np.ndarray, tuple | None, np.ndarray | None] | None] = (
-            lambda c, o, s: None
-        ),
     ) -> None:
-        self.worker = worker
-        self.render = render  # (camera, outputs) -> dict or None when no model is ready
-        self.is_training, self.preview_shown, self.depth_range = is_training, preview_shown, depth_range
+        self.worker, self.run = worker, run  # the model renders through `run`; its setup gives the depth scale
+        self.preview = preview  # the browser-drawn 3D preview, shown while a camera moves (viser_preview.py)
+        self.compare = compare  # the Compare tab: its view of A and B replaces ours while on (viser_compare.py)
+        self.on_unsnap = on_unsnap  # a camera left its snapped view: the app brings back what it hid
         self.max_width = int(
             min(max(max_width, MIN_WIDTH), MAX_WIDTH)
         )  # the slider's own range (--view-width 64 broke it)
         self.settle_s, self.refresh_s = float(settle_s), float(refresh_s)
-        self.on_unsnap, self.show_preview = on_unsnap, show_preview
-        self.compare = compare  # the Compare tab's view of A and B, when it is on (viser_compare.py)
         self.clients: dict[int, ClientView] = {}
         self._lock = threading.Lock()
         self._gui_lock = threading.Lock()
@@ -274,7 +289,7 @@ class ViewportRenderer:
                 setattr(view, attr, cast(view.gui[attr].value))
                 if attr == "enabled" and not view.enabled:
                     client.scene.set_background_image(None)
-                    self.show_preview(client.client_id, True)
+                    self.preview.set_visible(client.client_id, True)
                 self.request(client.client_id)
 
             return on_update
@@ -314,12 +329,12 @@ class ViewportRenderer:
         now = time.monotonic()
         moving_already = now - view.last_move < self.settle_s
         view.last_move, view.version = now, view.version + 1
-        if not self.preview_shown():  # no 3D preview: a coarse render follows the camera
+        if not self.preview.on:  # no 3D preview: a coarse render follows the camera
             self.request(client_id)
             return
         if not moving_already and view.enabled:
             view.client.scene.set_background_image(None)  # the browser's own 3D preview, at full frame rate
-            self.show_preview(client_id, True)
+            self.preview.set_visible(client_id, True)
         self.request(client_id, delay=self.settle_s, debounce=True)
 
     def request(self, client_id: int, delay: float = 0.0, debounce: bool = False) -> None:
@@ -382,10 +397,10 @@ class ViewportRenderer:
         view = self.clients.get(client_id)
         if view is None or not view.enabled or view.version != version:
             return  # gone, switched off, or the camera moved since: a newer request is queued
-        if refresh and not self.is_training():
+        if refresh and not self.run.training:
             return  # a refresh for a model that no longer changes (paused, finished): nothing new to send
         moving = time.monotonic() - view.last_move < self.settle_s
-        if moving and self.preview_shown():  # the browser draws the 3D preview meanwhile
+        if moving and self.preview.on:  # the browser draws the 3D preview meanwhile
             return self.request(client_id, delay=self.settle_s, debounce=True)
         if view.snapped is not None and view.snapped.left(self.at(view, view.snapped.camera)):
             view.snapped = None  # the camera was moved away (checked once still: a snap may animate)
@@ -394,10 +409,12 @@ class ViewportRenderer:
         if got is None:
             return
         cam, n_passes = got
-        out = self.render(cam, outputs=("rgb", "depth", "opacity", "beta2"))
+        out = self.run.render(cam, outputs=("rgb", "depth", "opacity", "beta2"))
         if out is None or view.version != version or client_id not in self.clients:
             return
-        composed = self.compare(cam, out, view.snapped)  # the Compare tab's view (it says its own depth), or ours
+        composed = self.compare.compose(
+            cam, out, view.snapped
+        )  # the Compare tab's view (it says its own depth), or ours
         image, bar, depth = composed if composed is not None else (*self._compose(view, cam, out), view_depth(cam, out))
         try:
             view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=depth)
@@ -415,10 +432,10 @@ class ViewportRenderer:
         if moving:  # a coarse frame while the camera moves; the passes once it is still
             return self.request(client_id, delay=self.settle_s, debounce=True)
         if pass_idx + 1 == n_passes:
-            self.show_preview(client_id, False)  # the exact view replaces the preview
+            self.preview.set_visible(client_id, False)  # the exact view replaces the preview
         if pass_idx + 1 < n_passes:  # the next, finer pass
             self.worker.submit(("view", client_id), lambda: self._render(client_id, version, pass_idx + 1), priority=1)
-        elif self.is_training():  # keep the still view up to date with training
+        elif self.run.training:  # keep the still view up to date with training
             self.worker.submit(
                 ("view", client_id),
                 lambda: self._render(client_id, version, pass_idx, refresh=True),
@@ -428,7 +445,7 @@ class ViewportRenderer:
 
     def _compose(self, view: ClientView, cam: Camera, out: dict) -> tuple[np.ndarray, tuple | None]:
         """The background image and its colour scale (lo, hi, label), or None for RGB."""
-        scalars = ScalarView(depth_range=self.depth_range(), per_frame=view.per_frame)
+        scalars = ScalarView(depth_range=depth_range(self.run.setup), per_frame=view.per_frame)
         snapped = view.snapped
         if snapped is None or snapped.reference is None:
             rng = output_range(out, view.output, scalars)

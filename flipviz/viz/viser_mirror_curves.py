@@ -1,0 +1,128 @@
+"""The Mirror tab's charts over training: how far BA moved each mirrored camera (or its error
+against the exact reflection), the refined plane's angle and offset, and the agreement gate's
+ratio of mirrored to input error with its limit; the gate's verdict in words when it drops them.
+
+Built per run (one line per mirrored camera) from the run's `RunCurves`; a chart shows once it has
+two points, and is sent again only when it has a new step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import viser
+
+from flipviz.training.events import SetupEvent
+from flipviz.viz import palette
+from flipviz.viz.run_curves import RunCurves
+
+POSE_TITLES = {
+    True: "Mirrored cameras: rotation error (deg) vs their exact reflections",
+    False: "Mirrored cameras: rotation BA applied (deg)",
+}  # no true plane: what BA moved
+PLANE_TITLES = {True: "Mirror plane: error vs the true plane", False: "Mirror plane: change from its start"}
+AGREE_TITLE = "Mirrors vs inputs: squared error ratio on the object (dropped above the limit)"
+
+
+class MirrorCurves:
+    """The "Over training" folder's three charts, and the gate's verdict in `verdict` (placed by the tab)."""
+
+    def __init__(self, server: viser.ViserServer, verdict: viser.GuiMarkdownHandle) -> None:
+        self.server, self.verdict = server, verdict
+        self.folder = server.gui.add_folder("Over training", expand_by_default=True)
+        self.poses: viser.GuiUplotHandle | None = None
+        self.plane: viser.GuiUplotHandle | None = None
+        self.agreement: viser.GuiUplotHandle | None = None
+        self._plotted: tuple = ((), (), ())  # (mirror, plane, agreement) data keys of the charts shown
+
+    def build(self, setup: SetupEvent, refining: bool) -> None:
+        """This run's curves (hidden until they have points): one line per mirrored camera, and the
+        plane's angle and offset when training refines it."""
+        for plot in (self.poses, self.plane, self.agreement):
+            if plot is not None:
+                plot.remove()
+        self.poses = self.plane = self.agreement = None
+        self._plotted = ((), (), ())
+        self.verdict.content = ""
+        names = [c.source or c.camera.name for c in setup.cameras if c.kind == "mirror_init"]
+        if not names or setup.plane is None:
+            return
+        colors = [palette.hex_color(palette.series_color(i, len(names))) for i in range(len(names))]
+        with self.folder:
+            self.poses = self.server.gui.add_uplot(
+                (np.zeros(1), *np.zeros((len(names), 1))),
+                ({"label": "step"}, *({"label": n, "stroke": c, "width": 1.5} for n, c in zip(names, colors))),
+                title=POSE_TITLES[False],
+                scales={"x": {"time": False}},
+                aspect=1.6,
+                legend={"show": len(names) <= 8},
+                visible=False,
+            )
+            if refining:
+                self.plane = self.server.gui.add_uplot(
+                    (np.zeros(1), np.zeros(1), np.zeros(1)),
+                    (
+                        {"label": "step"},
+                        {"label": "angle (deg)", "stroke": palette.hex_color(palette.MIRROR_PLANE), "width": 2},
+                        {
+                            "label": "offset (units)",
+                            "stroke": palette.hex_color(palette.TRUE_PLANE),
+                            "width": 2,
+                            "scale": "off",
+                        },
+                    ),
+                    title=PLANE_TITLES[False],
+                    scales={"x": {"time": False}, "off": {"auto": True}},
+                    aspect=1.6,
+                    axes=({}, {}, {"scale": "off", "side": 1, "grid": {"show": False}}),
+                    visible=False,
+                )
+            self.agreement = self.server.gui.add_uplot(
+                (np.zeros(1), np.zeros(1), np.zeros(1)),
+                (
+                    {"label": "step"},
+                    {"label": "mirrored / input", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
+                    {"label": "limit", "stroke": "#888888", "width": 1, "dash": [6, 4]},
+                ),
+                title=AGREE_TITLE,
+                scales={"x": {"time": False}, "y": {"auto": False, "range": [0.0, 1.0]}},
+                aspect=1.6,
+                visible=False,
+            )
+
+    def set_curves(self, curves: RunCurves) -> None:
+        """The run's curves (RunCurves' mirror, plane and agreement data); each sent only when it has a new
+        step. The agreement's y range is set here (uPlot's own range breaks on a leading NaN, and the
+        limit must stay in view); the gate's verdict goes in the text above the charts."""
+        poses, plane, agree = curves.mirror_data(), curves.plane_data(), curves.agreement_data()
+        key = tuple((len(d[0]), float(d[0][-1])) if d else () for d in (poses, plane, agree))
+        if key == self._plotted:
+            return
+        self._plotted = key
+        if curves.dropped_at is not None and curves.disagreement:
+            self.verdict.content = (
+                f"**Mirrors dropped at step {curves.dropped_at}:** on the object their squared error was "
+                f"{curves.disagreement[-1]:.1f}x the inputs' (limit {curves.limit:g}), so they contradict what the "
+                "inputs saw. "
+                + (
+                    "A fresh field trains on the inputs alone, as B/L."
+                    if curves.restarted
+                    else "Training goes on with the inputs alone."
+                )
+            )
+        if self.agreement is not None and len(agree) == 3 and len(agree[0]) >= 2:
+            top = float(np.nanmax([*agree[1], curves.limit if np.isfinite(curves.limit) else 0.0]))
+            self.agreement.scales = {
+                "x": {"time": False},
+                "y": {"auto": False, "range": [0.0, float(np.ceil(top * 1.1 + 0.01))]},
+            }
+        for plot, data, title in (
+            (self.poses, poses, POSE_TITLES[curves.mirror_vs_truth]),
+            (self.plane, plane, PLANE_TITLES[curves.plane_vs_truth]),
+            (self.agreement, agree, AGREE_TITLE),
+        ):
+            if plot is None or len(data) < 2 or len(data[0]) < 2:
+                continue
+            if plot.title != title:
+                plot.title = title
+            plot.data = data
+            plot.visible = True
