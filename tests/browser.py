@@ -120,13 +120,16 @@ def wait_until(cond, timeout: float = 60.0, every: float = 0.25, what: str = "co
 
 
 def screenshot_png(driver, timeout: float = 300.0) -> bytes:
-    """The page as PNG bytes. Chromedriver gives the renderer a fixed 10 s per capture; a software-GL
-    canvas on a busy machine can take longer, so a capture that timed out is asked for again."""
+    """The page as PNG bytes, from DevTools' Page.captureScreenshot. Chromedriver's own screenshot
+    command gives the renderer a fixed 10 s, which a software-GL canvas on a busy machine can exceed
+    on every try; a capture that failed anyway is asked for again until `timeout`."""
+    import base64
+
     from selenium.common.exceptions import TimeoutException
 
     def attempt() -> bytes | None:
         try:
-            return driver.get_screenshot_as_png()
+            return base64.b64decode(driver.execute_cdp_cmd("Page.captureScreenshot", {"format": "png"})["data"])
         except TimeoutException:
             return None
 

@@ -200,7 +200,7 @@ def test_pause_stops_steps_and_resume(app):
             assert app.trainer.paused and app.trainer.step == s0
             await c.click("Resume")
             t = time.monotonic()
-            while app.trainer.step == s0 and time.monotonic() - t < 20:
+            while app.trainer.step == s0 and time.monotonic() - t < 60:
                 await asyncio.sleep(0.1)
             assert app.trainer.step > s0 and not app.trainer.paused
 
@@ -420,7 +420,7 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             await c.click("Load run B")
             t = time.monotonic()
             while "Cannot load run B" not in app.compare.status_md.content:
-                assert time.monotonic() - t < 20, app.compare.status_md.content
+                assert time.monotonic() - t < 60, app.compare.status_md.content
                 await asyncio.sleep(0.1)
             await asyncio.sleep(2.5)  # the line stays past the status loop's next refresh (every second)
             assert "Cannot load run B" in app.compare.status_md.content
@@ -488,7 +488,7 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             name = key
             t = time.monotonic()
             while name not in app.compare.scores:
-                assert time.monotonic() - t < 30, "no A/B scores of the snapped view"
+                assert time.monotonic() - t < 90, "no A/B scores of the snapped view"
                 await asyncio.sleep(0.2)
             await c.set_value("Show", "off")
             await asyncio.sleep(0.3)
@@ -699,7 +699,7 @@ def test_train_b_next_to_the_running_a(app):
             await c.click("Train B next to this run")
             t = time.monotonic()
             while app.compare.b is None or app.compare.b.trainer.step < 3:
-                assert time.monotonic() - t < 40, app.compare.status_md.content
+                assert time.monotonic() - t < 90, app.compare.status_md.content
                 await asyncio.sleep(0.2)
 
     try:
@@ -756,7 +756,7 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
                 await c.click("Show the mirrors anyway (not trained on)")
                 t = time.monotonic()
                 while not any("not trained on" in k for k in a.mirror.scores):
-                    assert time.monotonic() - t < 40, a.mirror.table.content
+                    assert time.monotonic() - t < 90, a.mirror.table.content
                     await asyncio.sleep(0.2)
 
         run(go())
@@ -805,7 +805,7 @@ def test_restart_with_another_method(app):
             await c.click("Restart training")
             t = time.monotonic()
             while not (app.setup is not None and app.setup.method == "bl" and app.step > 0):
-                assert time.monotonic() - t < 40, f"no restart: {app.status} {app.message}"
+                assert time.monotonic() - t < 90, f"no restart: {app.status} {app.message}"
                 await asyncio.sleep(0.2)
             # the replaced run's checkpoint is kept (within the budget): one click compares with it
             await c.click("Compare with the previous run")
@@ -970,7 +970,7 @@ def test_the_render_share_is_a_fraction_of_the_time():
         assert done.wait(30)
         t = time.monotonic()
         while not w._spans:  # recorded just after the job returns
-            assert time.monotonic() - t < 10
+            assert time.monotonic() - t < 60
             time.sleep(0.01)
         assert all(w.share(window_s=s) <= 1.0 for s in (0.05, 0.3, 0.6))  # (busy / window gave up to 12)
         assert w.share(window_s=60.0) == pytest.approx(0.6 / 60.0, rel=0.2)

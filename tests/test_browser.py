@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 import viser
 from browser import CountingProxy, chromium, chromium_available, screenshot_png, wait_until
 
@@ -49,10 +50,15 @@ def app(tmp_path_factory):
         out=tmp_path_factory.mktemp("browser") / "run",
         view_width=640,
     )
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # one core for training, the other for Chromium's software WebGL (a busy machine)
     a = App(cfg).start()
-    wait_until(lambda: a.setup is not None and a.step > 20, 120, what="training to start")
-    yield a
-    a.stop()
+    try:
+        wait_until(lambda: a.setup is not None and a.step > 20, 180, what="training to start")
+        yield a
+    finally:
+        a.stop()
+        torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")
