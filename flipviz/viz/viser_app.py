@@ -470,7 +470,7 @@ class App(Observer):
             with self._ev_lock:  # the curves the trainer's thread adds to, read under its lock (a few ms)
                 if self._curves is not None:
                     self.train.set_plot(self._curves.psnr_data())
-                    self.mirror.curves.set_curves(self._curves)
+                    self.mirror.curves.show(self._curves)
             self.compare.show_status()
             self._last_plot = now
         if images is not None:

@@ -89,7 +89,7 @@ class MirrorCurves:
                 visible=False,
             )
 
-    def set_curves(self, curves: RunCurves) -> None:
+    def show(self, curves: RunCurves) -> None:
         """The run's curves (RunCurves' mirror, plane and agreement data); each sent only when it has a new
         step. The agreement's y range is set here (uPlot's own range breaks on a leading NaN, and the
         limit must stay in view); the gate's verdict goes in the text above the charts."""
