@@ -69,13 +69,11 @@ def held_out(scene: str):
     return [v.camera for v in views], [v.rgb for v in views]
 
 
-def crop_truth(scene: str, camera) -> np.ndarray:
-    """The ground truth of the crop view at CROP_RES (lego: its 200 px image, upsampled by 4)."""
+def crop_truth(scene: str, camera, truth: np.ndarray) -> np.ndarray:
+    """The ground truth of the crop view at CROP_RES: a built-in's rendered there; lego's `truth` (its
+    EVAL_RES image, all the data has) upsampled."""
     if scene == "lego":
-        from flipviz.data.blender import load_blender
-
-        rgb = load_blender(LEGO, res=EVAL_RES).views[LEGO_HELD_OUT[0]].rgb
-        return np.repeat(np.repeat(rgb, CROP_RES // EVAL_RES, 0), CROP_RES // EVAL_RES, 1)
+        return np.repeat(np.repeat(truth, CROP_RES // EVAL_RES, 0), CROP_RES // EVAL_RES, 1)
     from flipviz.data.builtin import render_view
 
     return render_view(scene, camera.resized(CROP_RES))[0]
@@ -138,8 +136,9 @@ def crops_figure(args: Args, scene: str) -> None:
     import imageio.v3 as iio
     from PIL import Image, ImageDraw
 
-    cams, _ = held_out(scene)
-    tiles = [("ground truth" + (" (200 px, upsampled)" if scene == "lego" else ""), crop_truth(scene, cams[0])[CROP])]
+    cams, truths = held_out(scene)
+    truth = crop_truth(scene, cams[0], truths[0])[CROP]
+    tiles = [("ground truth" + (" (200 px, upsampled)" if scene == "lego" else ""), truth)]
     for s in args.settings:
         width, grid_res = SETTINGS[s]
         path = args.out / f"crop_{scene}_{width}_{grid_res[-1]}.npy"
