@@ -238,7 +238,8 @@ def test_3b_click_a_pixel_of_the_snapped_view_to_probe_it(app, browser):
     text = panel_text(browser)
     assert "beta^2" in text and "opacity" in text and "ground truth RGB" in text
     img = shot(browser, "3b_probe").astype(int)  # the cyan marker at the click
-    x0, y0 = el.location["x"] + el.size["width"] // 2, el.location["y"] + el.size["height"] // 2
+    x, y, w, h, s = canvas_rect(browser)
+    x0, y0 = round(s * (x + w / 2)), round(s * (y + h / 2))
     patch = img[y0 - 30 : y0 + 30, x0 - 30 : x0 + 30]
     cyan = (patch[..., 1] - patch[..., 0] > 60) & (patch[..., 2] - patch[..., 0] > 60)
     assert cyan.sum() >= 4, "no probe marker drawn at the click"
@@ -308,15 +309,31 @@ def test_6_add_and_delete_a_novel_camera(app, browser):
     wait_until(lambda: name not in app.novel.gizmos, 20, what="the camera deleted")
 
 
+LARGEST_CANVAS = (
+    "return [...document.getElementsByTagName('canvas')]"
+    ".reduce((a, c) => c.width * c.height > a.width * a.height ? c : a)"
+)
+
+
 def canvas_element(d):
-    """The 3D canvas element (the largest canvas of the page)."""
-    return max(d.find_elements("tag name", "canvas"), key=lambda c: c.size["width"] * c.size["height"])
+    """The 3D canvas element (the largest canvas of the page), found in the page in one call: the
+    panels add and drop small canvases (charts), so a list of handles can go stale while it is sized."""
+    return d.execute_script(LARGEST_CANVAS)
+
+
+def canvas_rect(d) -> tuple[float, float, float, float, float]:
+    """The 3D canvas's CSS rectangle and the device pixel ratio, read in one script call."""
+    r = d.execute_script(
+        LARGEST_CANVAS.replace("return ", "const c = ")
+        + "; const r = c.getBoundingClientRect(); return [r.x, r.y, r.width, r.height, window.devicePixelRatio]"
+    )
+    return tuple(float(v) for v in r)
 
 
 def canvas(d, img: np.ndarray) -> np.ndarray:
     """The 3D canvas's pixels in a screenshot `img` (the largest canvas of the page)."""
-    r, s = canvas_element(d).rect, float(d.execute_script("return window.devicePixelRatio"))
-    x, y, w, h = (round(s * r[k]) for k in ("x", "y", "width", "height"))
+    *rect, s = canvas_rect(d)
+    x, y, w, h = (round(s * v) for v in rect)
     return img[y : y + h, x : x + w]
 
 
@@ -419,9 +436,10 @@ def test_6c_a_keyframe_at_your_pose_is_hidden_and_every_colour_is_in_the_legend(
     before = magenta(canvas(browser, shot(browser, "6c_before")))  # the whole canvas: the frame ran along its edges
     button(browser, "Add keyframe")
     wait_until(lambda: len(app.compare.keyframes) == 1, 20, what="the keyframe")
-    time.sleep(1.0)  # the UI tick (4 a second) decides the frustum's visibility
-    assert magenta(canvas(browser, shot(browser, "6c_keyframe"))) <= before + 50  # no magenta frame over the view
-    assert not app.compare._key_handles[0].visible  # at the browser's own camera: hidden
+    wait_until(lambda: not app.compare._key_handles[0].visible, 60, what="the keyframe at your camera hidden")
+    wait_until(  # the browser draws what the server set: no magenta frame over the view
+        lambda: magenta(canvas(browser, shot(browser, "6c_keyframe"))) <= before + 50, 120, what="no magenta frame"
+    )
     button(browser, "Clear keyframes")
     tab(browser, "Show")
     img = shot(browser, "6c_legend")
