@@ -113,8 +113,15 @@ def by_label(d, label: str):
 
 
 def tab(d, name: str) -> None:
-    d.find_element("xpath", f"//*[@role='tab'][normalize-space()='{name}']").click()
-    time.sleep(0.3)
+    """Open the panel's tab `name`, once the page has drawn it (a page just loaded shows its canvas first)."""
+    wait_until(lambda: d.find_elements("xpath", f"//*[@role='tab'][normalize-space()='{name}']"), 60, what=name)[
+        0
+    ].click()
+    wait_until(
+        lambda: d.find_elements("xpath", f"//*[@role='tab'][normalize-space()='{name}'][@aria-selected='true']"),
+        20,
+        what=f"the {name} tab open",
+    )
 
 
 def button(d, text: str) -> None:
