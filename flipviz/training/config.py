@@ -139,11 +139,12 @@ class TrainConfig:
     """With --mirror-plane auto: read the estimate from this plane.json when it exists (another run's on
     the same inputs, e.g. Flip beside Flip+U), else estimate it and write it there as well."""
     estimate_after: int = 150
-    """With --mirror-plane auto and the grid field: the steps the run trains on its inputs alone (at most a
-    quarter of --steps) before it estimates the plane from its own field; the mirrored views join then,
-    and their schedules (the NLL's warm-up, BA's and the plane's starts) count from there. 0, or --field
-    nerf (an MLP shows little surface that early): a separate short fit estimates the plane before
-    training (10-12 s on 2 cores; the search from the run's field takes 1.5-3 s). 150 steps gave estimates
+    """With --mirror-plane auto and the grid field: the steps the run trains on its inputs alone before it
+    estimates the plane from its own field; the mirrored views join then, and their schedules (the NLL's
+    warm-up, BA's and the plane's starts) count from there. 0, a run whose first quarter is shorter (under
+    600 steps at 150), or --field nerf (an MLP shows little surface that early): a separate short fit
+    estimates the plane before training (10-12 s on 2 cores; the search from the run's field takes 1.5-3
+    s) and the mirrors train from step 0. 150 steps gave estimates
     as confident as the separate fit's on the chair's configuration 1 (0.28-0.30 over 5 seeds at 600
     steps, 0.31-0.35 over 3 at 3000), and 100 steps less so (0.18-0.20): chosen on the estimate's own
     score, never on a test view or the true plane."""

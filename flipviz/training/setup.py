@@ -102,11 +102,12 @@ def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
 
 
 def mirrors_join_at(cfg: TrainConfig) -> int:
-    """The step the mirrored views join: with --mirror-plane auto, after --estimate-after steps (at most a
-    quarter of the run) on the grid field; else 0."""
-    if cfg.mirror_plane != "auto" or cfg.field == "nerf":
+    """The step the mirrored views join: with --mirror-plane auto on the grid field, after --estimate-after
+    steps on the inputs alone when they fit in the first quarter of the run; else 0 (the mirrors train
+    from the start; auto's plane then comes from a separate fit, as a younger field's would be doubted)."""
+    if cfg.mirror_plane != "auto" or cfg.field == "nerf" or cfg.estimate_after > cfg.steps // 4:
         return 0
-    return min(cfg.estimate_after, cfg.steps // 4)
+    return cfg.estimate_after
 
 
 def build_run(
