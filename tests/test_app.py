@@ -293,7 +293,7 @@ def test_mirror_consistency_scores_and_outputs(app):
             last_col = [
                 float(row.split("|")[-2].split()[0]) for row in m["updates"]["_markdown"].split("\n") if "_flip" in row
             ]
-            cams = app.mirror.preview_cams if app.mirror.moved else None
+            cams = app.mirror.preview.cams if app.mirror.moved else None
             assert cams is not None and len(last_col) == len(cams) == 8
             for cam, gt, got in zip(cams, app.mirror.flipped, last_col):
                 rgb = app.render(cam, outputs=("rgb",))["rgb"]
@@ -752,18 +752,21 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
                 await c.send_camera((4.0, -4.0, 3.0))
                 await c.wait_gui("Show the mirrors anyway (not trained on)")
                 await c.wait_gui("Max resolution")  # its view, though --view-width 64 is below the slider's 128
-                assert a.mirror.anyway_btn.visible and not a.mirror.preview_frame.visible
+                assert a.mirror.consistency.anyway_btn.visible and not a.mirror.preview.frame.visible
                 await c.click("Show the mirrors anyway (not trained on)")
                 t = time.monotonic()
-                while not any("not trained on" in k for k in a.mirror.scores):
-                    assert time.monotonic() - t < 90, a.mirror.table.content
+                while not any("not trained on" in k for k in a.mirror.consistency.scores):
+                    assert time.monotonic() - t < 90, a.mirror.consistency.table.content
                     await asyncio.sleep(0.2)
 
         run(go())
-        scores = next(v for k, v in a.mirror.scores.items() if "not trained on" in k)
-        assert a.mirror.preview_frame.visible and len(scores) == len(a.mirror.inputs) == len(a.mirror.preview)
-        assert [tuple(h.color) for h in a.mirror.preview] == [palette.score_color(x) for x in scores]
-        assert a.mirror.frustum_shows.value == "disagreement" and "not trained on" in a.mirror.table.content
+        scores = next(v for k, v in a.mirror.consistency.scores.items() if "not trained on" in k)
+        assert a.mirror.preview.frame.visible and len(scores) == len(a.mirror.inputs) == len(a.mirror.preview.handles)
+        assert [tuple(h.color) for h in a.mirror.preview.handles] == [palette.score_color(x) for x in scores]
+        assert (
+            a.mirror.consistency.frustum_shows.value == "disagreement"
+            and "not trained on" in a.mirror.consistency.table.content
+        )
         assert not a.trainer.training.mirror_ids  # still not trained on
     finally:
         a.stop()
@@ -782,16 +785,16 @@ def test_the_mirror_tab_follows_the_plane_training_refines(app):
 
     run(go())
     t = time.monotonic()
-    while len(app.mirror.trail) < 3:
-        assert time.monotonic() - t < 60, len(app.mirror.trail)
+    while len(app.mirror.trail.tips) < 3:
+        assert time.monotonic() - t < 60, len(app.mirror.trail.tips)
         time.sleep(0.1)
-    text = app.mirror.refine_text.content
+    text = app.mirror.trail.text.content
     assert "Refined plane" in text and "off the true plane" in text, text
     plane = app.mirror.train_plane  # the plane training uses now, which the quad shows
     assert np.allclose(app.mirror.quad.position, plane.point) and np.allclose(
         np.abs(app.mirror.quad.wxyz), np.abs(plane_wxyz(plane)), atol=1e-6
     )
-    assert app.mirror.train_plane is not app.mirror.start_plane
+    assert app.mirror.train_plane is not app.mirror.trail.start
 
 
 def test_restart_with_another_method(app):

@@ -9,6 +9,7 @@ them). Set FLIPVIZ_SHOTS=DIR to keep the screenshots.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import time
@@ -113,15 +114,19 @@ def by_label(d, label: str):
 
 
 def tab(d, name: str) -> None:
-    """Open the panel's tab `name`, once the page has drawn it (a page just loaded shows its canvas first)."""
-    wait_until(lambda: d.find_elements("xpath", f"//*[@role='tab'][normalize-space()='{name}']"), 60, what=name)[
-        0
-    ].click()
-    wait_until(
-        lambda: d.find_elements("xpath", f"//*[@role='tab'][normalize-space()='{name}'][@aria-selected='true']"),
-        20,
-        what=f"the {name} tab open",
-    )
+    """Open the panel's tab `name` once the page has drawn it (a page just loaded shows its canvas first),
+    and wait until its panel is shown (Mantine's tabs name their panel in aria-controls)."""
+    xp = f"//*[@role='tab'][normalize-space()='{name}']"
+    el = wait_until(lambda: d.find_elements("xpath", xp), 60, what=name)[0]
+    el.click()
+    panel = el.get_attribute("aria-controls")
+
+    def shown() -> bool:
+        if not d.find_elements("xpath", xp + "[@aria-selected='true']"):
+            return False
+        return not panel or any(p.is_displayed() for p in d.find_elements("id", panel))
+
+    wait_until(shown, 20, what=f"the {name} tab's panel")
 
 
 def button(d, text: str) -> None:
@@ -293,9 +298,9 @@ def test_5_move_the_plane_and_score_it(app, browser):
 
     wait_until(lambda: app.mirror.moved and abs(azimuth() - 40.0) < 1.5, 20, what="the plane at 40 degrees")
     button(browser, "Score mirrors")
-    wait_until(lambda: any("plane preview" in k for k in app.mirror.scores), 60, what="the scores")
-    scores = next(v for k, v in app.mirror.scores.items() if "plane preview" in k)
-    colours = [tuple(h.color) for h in app.mirror.preview]
+    wait_until(lambda: any("plane preview" in k for k in app.mirror.consistency.scores), 60, what="the scores")
+    scores = next(v for k, v in app.mirror.consistency.scores.items() if "plane preview" in k)
+    colours = [tuple(h.color) for h in app.mirror.preview.handles]
     assert colours == [palette.score_color(s) for s in scores]  # preview frustums wear their scores
     assert "plane preview" in panel_text(browser)
     shot(browser, "5_plane_scored")
@@ -442,18 +447,26 @@ def test_6c_a_keyframe_at_your_pose_is_hidden_and_every_colour_is_in_the_legend(
     tab(browser, "Compare")
     before = magenta(canvas(browser, shot(browser, "6c_before")))  # the whole canvas: the frame ran along its edges
     button(browser, "Add keyframe")
-    wait_until(lambda: len(app.compare.keyframes) == 1, 20, what="the keyframe")
-    wait_until(lambda: not app.compare._key_handles[0].visible, 60, what="the keyframe at your camera hidden")
+    wait_until(  # the keyframe's frustum is added just after the keyframe itself
+        lambda: len(app.compare._key_handles) == 1 and not app.compare._key_handles[0].visible,
+        60,
+        what="the keyframe at your camera, hidden",
+    )
     wait_until(  # the browser draws what the server set: no magenta frame over the view
         lambda: magenta(canvas(browser, shot(browser, "6c_keyframe"))) <= before + 50, 120, what="no magenta frame"
     )
     button(browser, "Clear keyframes")
     tab(browser, "Show")
-    img = shot(browser, "6c_legend")
-    panel = img[:, int(0.72 * img.shape[1]) :].reshape(-1, 1, 3).astype(int)  # the docked control panel
-    for colours, what in palette.LEGEND:
-        for c in colours:
-            assert (np.abs(panel - np.array(c)).max(-1) < 8).sum() >= 20, f"no swatch of {c} ({what}) in the legend"
+
+    def missing() -> list[str]:
+        img = shot(browser, "6c_legend")
+        panel = img[:, int(0.72 * img.shape[1]) :].reshape(-1, 1, 3).astype(int)  # the docked control panel
+        seen = lambda c: (np.abs(panel - np.array(c)).max(-1) < 8).sum() >= 20  # noqa: E731
+        return [f"{c} ({what})" for colours, what in palette.LEGEND for c in colours if not seen(c)]
+
+    with contextlib.suppress(TimeoutError):
+        wait_until(lambda: not missing(), 30, what="a swatch of every colour in the legend")
+    assert not missing(), f"no swatch in the legend of {missing()}"
 
 
 def test_7_restart_with_bl(app, browser):
@@ -537,7 +550,9 @@ def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory
 
         before = score_coloured(viewport(shot(browser, "10_doubted")))
         button(browser, "Show the mirrors anyway (not trained on)")
-        wait_until(lambda: any("not trained on" in k for k in doubted.mirror.scores), 120, what="the scores")
+        wait_until(
+            lambda: any("not trained on" in k for k in doubted.mirror.consistency.scores), 120, what="the scores"
+        )
         wait_until(lambda: "not trained on" in panel_text(browser), 30, what="the scores' table")
         img = wait_view(browser, "10_anyway", lambda i: score_coloured(i) > before + 200, 60)
         assert score_coloured(img) > before + 200  # the mirrored frustums, drawn in their scores' colours

@@ -474,7 +474,7 @@ class App(Observer):
             self.compare.show_status()
             self._last_plot = now
         if images is not None:
-            self.mirror.on_images(images)
+            self.mirror.consistency.on_images(images)
         if plane is not None:
             self.mirror.follow_training(plane)
         self.train.set_controls(self.status)

@@ -1,6 +1,8 @@
-"""The Mirror tab's charts over training: how far BA moved each mirrored camera (or its error
-against the exact reflection), the refined plane's angle and offset, and the agreement gate's
-ratio of mirrored to input error with its limit; the gate's verdict in words when it drops them.
+"""The Mirror tab over training: how far BA moved each mirrored camera (or its error against the
+exact reflection), the refined plane's angle and offset, and the agreement gate's ratio of mirrored
+to input error with its limit; the gate's verdict in words when it drops them (`MirrorCurves`); and
+the refined plane in the 3D view, the trail of its normal's tip, with its motion and error in words
+(`PlaneTrail`).
 
 Built per run (one line per mirrored camera) from the run's `RunCurves`; a chart shows once it has
 two points, and is sent again only when it has a new step.
@@ -11,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 import viser
 
+from flipviz.data.dataset import Plane
+from flipviz.geometry.symmetry import plane_error
 from flipviz.training.events import SetupEvent
 from flipviz.viz import palette
 from flipviz.viz.run_curves import RunCurves
@@ -126,3 +130,45 @@ class MirrorCurves:
                 plot.title = title
             plot.data = data
             plot.visible = True
+
+
+class PlaneTrail:
+    """The plane training refines (--refine-plane): the trail of its normal's tip in the 3D view (/plane_trail)
+    and, in `text`, how far it moved from where training started it and, where known, its error."""
+
+    def __init__(self, server: viser.ViserServer, text: viser.GuiMarkdownHandle) -> None:
+        self.server, self.text = server, text
+        self.start: Plane | None = None  # where training started the plane
+        self.true: Plane | None = None
+        self.tips: list[np.ndarray] = []  # the tip of the refined plane's normal, step after step
+        self.radius = 1.0
+
+    def build(self, start: Plane, true: Plane | None, radius: float, refining: bool) -> None:
+        self.start, self.true, self.tips, self.radius = start, true, [], radius
+        self.text.content = (
+            "_Training refines this plane: it moves with the mirrored rays' loss (orange trail)._" if refining else ""
+        )
+
+    def add(self, plane: Plane) -> bool:
+        """Training moved the plane to `plane`; False (nothing sent) when the move is too small to see."""
+        if self.start is None:
+            return False
+        tip = (plane.point + 0.4 * self.radius * plane.normal).astype(np.float32)
+        if self.tips and np.linalg.norm(tip - self.tips[-1]) < 1e-3 * self.radius:
+            return False
+        self.tips.append(tip)
+        if len(self.tips) > 1:
+            segs = np.stack([np.stack(self.tips[:-1]), np.stack(self.tips[1:])], axis=1)
+            self.server.scene.add_line_segments(
+                "/plane_trail", segs, palette.MIRROR_PLANE, thickness=3.0, thickness_units="screen"
+            )
+        moved_deg, moved_off = plane_error(plane, self.start)
+        text = f"**Refined plane:** turned {moved_deg:.2f}° and moved {moved_off:.3f} from where training started it"
+        if self.true is not None:
+            err0, err = plane_error(self.start, self.true), plane_error(plane, self.true)
+            text += (
+                f"; off the true plane by **{err[0]:.2f}° / {err[1]:.3f}** "
+                f"(it started {err0[0]:.2f}° / {err0[1]:.3f} off)"
+            )
+        self.text.content = text + "."
+        return True
