@@ -40,7 +40,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
 from browser import chromium, screenshot_png, wait_until  # noqa: E402
 from test_browser import button, canvas_element, checkbox, choose, tab  # noqa: E402
 
-from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
+from flipviz.viz.viser_app import App, AppConfig, check_run_input  # noqa: E402
 
 
 @dataclass
@@ -106,7 +106,8 @@ def capture_shot(args: Args) -> None:
     cfg = AppConfig(
         data=data, mirror_plane="auto", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100
     )
-    app = App(cfg).start()
+    cfg, scene = check_run_input(cfg)  # as `python app.py --data`: the 100 px capture trains at 100 px
+    app = App(cfg, scene=scene).start()
     try:
         wait_until(lambda: app.step >= args.steps_before // 2, 600, what="training")
         with chromium() as d:
@@ -179,7 +180,7 @@ def plane_shot(args: Args) -> None:
             open_page(d, app.port, settle_s=5.0)
             tab(d, "Mirror")
             checkbox(d, "Show plane preview", False)
-            wait_until(lambda: "Refined plane" in app.mirror.refine_text.content, 60, what="the refined plane")
+            wait_until(lambda: "Refined plane" in app.mirror.trail.text.content, 60, what="the refined plane")
             time.sleep(4.0)
             (args.out / "app_plane.png").write_bytes(screenshot_png(d))
     finally:
@@ -290,12 +291,14 @@ def orbit_shots(args: Args) -> None:
         tab(d, "Mirror")
         if app.mirror.dropped:  # the default gate doubts the mug's plane: its mirrors, drawn anyway
             button(d, "Show the mirrors anyway (not trained on)")
-            wait_until(lambda: any("not trained on" in k for k in app.mirror.scores), 120, what="the scores")
+            wait_until(
+                lambda: any("not trained on" in k for k in app.mirror.consistency.scores), 120, what="the scores"
+            )
         else:
             choose(d, "Mirrored frustums show", "disagreement")
             checkbox(d, "Show plane preview", False)
             button(d, "Score mirrors")
-            wait_until(lambda: any("now" in k for k in app.mirror.scores), 120, what="the scores")
+            wait_until(lambda: any("now" in k for k in app.mirror.consistency.scores), 120, what="the scores")
         time.sleep(3.0)
         (args.out / "app_mirror.png").write_bytes(screenshot_png(d))
 

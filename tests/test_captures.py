@@ -325,3 +325,16 @@ def test_a_driveby_capture_trains_with_its_held_out_views(driveby, tmp_path, sma
     assert len(trainer.training.mirror_ids) == N_DRIVE
     with pytest.raises(Exception, match="Upper views"):
         train(TrainConfig(data=driveby, res=32, steps=2, method="upper", out=tmp_path / "up", no_rrd=True))
+
+
+def test_the_app_trains_a_capture_narrower_than_its_default_at_the_captures_width(driveby, tmp_path):
+    """The app's 200 px default refused a 100 px capture ("flipviz does not upscale"): the app now trains
+    such data at its own width, and says so; `flipviz train` still refuses a --res wider than the data."""
+    from flipviz.data import TooWide, load_scene
+    from flipviz.viz.viser_app import AppConfig, check_run_input
+
+    cfg, scene = check_run_input(AppConfig(data=driveby, mirror_plane="scene", out=tmp_path / "run", no_rrd=True))
+    assert AppConfig().res == 200 and cfg.res == 32 and scene.resolution == (32, 32)
+    with pytest.raises(TooWide, match="wider than the images") as e:
+        load_scene("", driveby, 64)
+    assert e.value.width == 32

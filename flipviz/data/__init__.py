@@ -9,7 +9,7 @@ from flipviz.data.blender import export_scene, load_blender, write_blender
 from flipviz.data.builtin import load_builtin, orbit_camera, render_view
 from flipviz.data.cameras import Camera, View
 from flipviz.data.colmap import find_model, load_colmap
-from flipviz.data.dataset import DatasetError, Plane, SceneData
+from flipviz.data.dataset import DatasetError, Plane, SceneData, TooWide
 from flipviz.data.nerfstudio import load_nerfstudio, write_nerfstudio
 from flipviz.data.protocol import RING_INDICES, Split, make_split, observed_positions
 from flipviz.data.scenes import SCENES, build_mesh, symmetry_plane
@@ -39,6 +39,7 @@ __all__ = [
     "Camera",
     "View",
     "DatasetError",
+    "TooWide",
     "Plane",
     "SceneData",
     "SCENES",

@@ -16,7 +16,14 @@ from pathlib import Path
 import numpy as np
 
 from flipviz.data.cameras import Camera, View
-from flipviz.data.dataset import DatasetError, SceneData, camera_to_world, check_resolution, read_transforms
+from flipviz.data.dataset import (
+    DatasetError,
+    SceneData,
+    TooWide,
+    camera_to_world,
+    check_resolution,
+    read_transforms,
+)
 from flipviz.data.images import composite_on_white, read_rgba, save_rgba_png, uncomposite
 from flipviz.files import inside_folder, write_json
 
@@ -81,9 +88,7 @@ def load_blender(
             raise DatasetError(f"image {ipath} listed in {jpath.name} not found")
         rgba = read_rgba(ipath)
         if res is not None and res > rgba.shape[1]:
-            raise DatasetError(
-                f"--res {res} is wider than the images of {root} ({rgba.shape[1]} px); flipviz does not upscale"
-            )
+            raise TooWide(res, rgba.shape[1], root)
         if size is None:
             size = rgba.shape[:2]
         elif rgba.shape[:2] != size:

@@ -18,6 +18,14 @@ class DatasetError(UserError):
     """Bad input data. Its message is one line, meant to be shown to the user as is."""
 
 
+class TooWide(DatasetError):
+    """--res asks for more pixels than the images have (flipviz does not upscale); `width`: theirs."""
+
+    def __init__(self, res: int, width: int, where: object) -> None:
+        super().__init__(f"--res {res} is wider than the images of {where} ({width} px); flipviz does not upscale")
+        self.width = width
+
+
 def read_transforms(path: Path) -> dict:
     """A transforms JSON file (Blender or nerfstudio) as a dict; one-line DatasetError otherwise."""
     try:

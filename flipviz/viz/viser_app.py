@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import viser
 
-from flipviz.data import SceneData, load_scene
+from flipviz.data import SceneData, TooWide, load_scene
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.errors import UserError
@@ -85,10 +85,11 @@ class AppConfig(TrainConfig):
     """Optimisation steps. More than `flipviz train`'s 600, so that a newcomer watches training
     happen (about 2-3 minutes on 2 cores); the Train tab restarts with any other count."""
     res: int = 200
-    """Image width in pixels, 8..1024 (at most the data's own). Twice `flipviz train`'s 100 px: over the
-    app's 3000 steps, training at 200 px scored +2.5 dB (Upper) and +0.8 dB (B/L) at 200 px on held-out
-    views of the chair that the protocol never uses, in the same training time (the grid stays 64^3 ->
-    128^3; docs/results/resolution). At 600 steps it bought nothing consistent (-0.2 to +0.4 dB)."""
+    """Image width in pixels, 8..1024; narrower data (a 100 px capture) trains at its own width. Twice
+    `flipviz train`'s 100 px: over the app's 3000 steps, training at 200 px scored +2.5 dB (Upper) and
+    +0.8 dB (B/L) at 200 px on held-out views of the chair that the protocol never uses, in the same
+    training time (the grid stays 64^3 -> 128^3; docs/results/resolution). At 600 steps it bought
+    nothing consistent (-0.2 to +0.4 dB)."""
     port: int = 8080
     """Port of the web app (the next free one is used when it is busy)."""
     host: str = "127.0.0.1"
@@ -126,9 +127,10 @@ def check_host(host: str, port: int) -> None:
             raise UserError(f"cannot serve on --host {host!r}: {e.strerror}") from None
 
 
-def check_run_input(cfg: TrainConfig) -> SceneData:
+def check_run_input(cfg: AppConfig) -> tuple[AppConfig, SceneData]:
     """Check the settings, load the scene and build its mirror plane, and check a --resume checkpoint,
-    all before serving: bad input fails in one line, at once."""
+    all before serving: bad input fails in one line, at once. Data narrower than --res (the app's 200
+    px over a 100 px capture) trains at its own width: the settings come back with that --res."""
     cfg.validate()
     if isinstance(cfg, AppConfig):
         check_host(cfg.host, cfg.port)
@@ -140,11 +142,16 @@ def check_run_input(cfg: TrainConfig) -> SceneData:
         from flipviz.training.artifacts import refuse_to_overwrite
 
         refuse_to_overwrite(Path(cfg.out), cfg)
-    scene = load_scene(cfg.scene, cfg.data, cfg.res)
+    try:
+        scene = load_scene(cfg.scene, cfg.data, cfg.res)
+    except TooWide as e:
+        log.warning("%s: the app trains at the images' own %d px", e, e.width)
+        cfg = replace(cfg, res=e.width)
+        scene = load_scene(cfg.scene, cfg.data, cfg.res)
     inputs = run_split(cfg, scene).inputs
     if cfg.mirror_plane != "auto":  # auto is estimated when the run starts
         make_mirror_set(inputs, cfg.mirror_plane, scene.symmetry_plane, scene.center, scene.up, pose=cfg.mirror_pose)
-    return scene
+    return cfg, scene
 
 
 class App(Observer):
@@ -509,7 +516,8 @@ class App(Observer):
 def run_app(cfg: AppConfig) -> None:
     """Serve the app and train until Ctrl-C (training keeps being served after it finishes)."""
     logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
-    app = App(cfg, scene=check_run_input(cfg)).start()
+    cfg, scene = check_run_input(cfg)
+    app = App(cfg, scene=scene).start()
     if cfg.port and app.port != cfg.port:
         print(f"[flipviz] port {cfg.port} is busy or not allowed; serving on port {app.port}", flush=True)
     print(f"[flipviz] app running at {app.url}  (Ctrl-C to stop)", flush=True)
