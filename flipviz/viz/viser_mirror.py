@@ -144,11 +144,10 @@ class MirrorLesson:
         self.typed = TypedPlane(gui, on_plane=self.set_plane, on_error=self._cannot)
         reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
-        self.consistency = MirrorScores(
-            gui, worker, run, scene, self.show_anyway, self._scoring
-        )  # viser_mirror_scores.py
-        self.curves = MirrorCurves(server, verdict=gate_text)  # charts over training (viser_mirror_curves.py)
-        self.estimate = PlaneEstimatePanel(server, run, lambda: self.train_plane, self.set_plane)  # viser_estimate.py
+        # the parts kept apart: viser_mirror_scores.py, viser_mirror_curves.py, viser_estimate.py
+        self.consistency = MirrorScores(gui, worker, run, scene, self.show_anyway, self._scoring)
+        self.curves = MirrorCurves(server, verdict=gate_text)  # charts over training
+        self.estimate = PlaneEstimatePanel(server, run, lambda: self.train_plane, self.set_plane)
         self.preview = PlanePreview(server)
         reset_btn.on_click(lambda _: self.reset_plane())
         restart_btn.on_click(lambda _: self.restart())
