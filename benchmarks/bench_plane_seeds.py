@@ -45,18 +45,25 @@ def spread(planes: list[Plane]) -> tuple[float, float]:
     return deg, max(offsets) - min(offsets)
 
 
-def worst(planes: list[Plane], true: Plane) -> tuple[float, float]:
-    """The largest angle and the largest offset of the planes against the true plane."""
+def worst(planes: list[Plane], true: Plane | None) -> str:
+    """The largest angle and the largest offset of the planes against the true plane ('-': none known)."""
+    if true is None or not planes:
+        return "-"
     errors = [plane_error(p, true) for p in planes]
-    return max(e[0] for e in errors), max(e[1] for e in errors)
+    return f"{max(e[0] for e in errors):.2f}° / {max(e[1] for e in errors):.3f}"
+
+
+def spread_cell(planes: list[Plane]) -> str:
+    return "-" if not planes else "{:.2f}° / {:.3f}".format(*spread(planes))
 
 
 def main(a: Args) -> None:
     torch.set_num_threads(a.threads)
     head = (
-        "| scene | config | seeds | estimate: spread | worst error | refined: spread | worst error | PSNR min - max |"
+        "| scene | config | seeds | estimate: spread | worst error | refined: spread | worst error | "
+        "mirrors dropped | PSNR min - max |"
     )
-    rows, lines = [], [head, "|---|---|---|---|---|---|---|---|"]
+    rows, lines = [], [head, "|---|---|---|---|---|---|---|---|---|"]
     for scene in a.scenes.split(","):
         for config in (int(c) for c in a.configs.split(",")):
             est, ref, psnr = [], [], []
@@ -75,10 +82,12 @@ def main(a: Args) -> None:
                         )
                     )
                     m = tr.run()
+                refined = tr.flip.current_plane()  # None: the agreement gate dropped the mirrors
                 est.append(tr.mirrors.plane)
-                ref.append(tr.flip.current_plane())
+                ref += [refined] if refined is not None else []
                 psnr.append(m["psnr"])
-                true = tr.scene.symmetry_plane
+                true = tr.scene.symmetry_plane  # None: the object has no true mirror plane
+                error = lambda p: plane_error(p, true) if p is not None and true is not None else None  # noqa: E731
                 rows.append(
                     {
                         "scene": scene,
@@ -86,16 +95,15 @@ def main(a: Args) -> None:
                         "seed": seed,
                         "psnr": m["psnr"],
                         "estimate": est[-1].to_dict(),
-                        "refined": ref[-1].to_dict(),
-                        "estimate_error": plane_error(est[-1], true),
-                        "refined_error": plane_error(ref[-1], true),
+                        "refined": refined.to_dict() if refined is not None else None,
+                        "estimate_error": error(est[-1]),
+                        "refined_error": error(refined),
                     }
                 )
                 print(rows[-1])
-            (sd, so), (rd, ro), (ed, eo), (wd, wo) = spread(est), spread(ref), worst(est, true), worst(ref, true)
             lines.append(
-                f"| {scene} | {config} | {len(est)} | {sd:.2f}° / {so:.3f} | {ed:.2f}° / {eo:.3f} | "
-                f"{rd:.2f}° / {ro:.3f} | {wd:.2f}° / {wo:.3f} | {min(psnr):.2f} - {max(psnr):.2f} |"
+                f"| {scene} | {config} | {len(est)} | {spread_cell(est)} | {worst(est, true)} | {spread_cell(ref)} | "
+                f"{worst(ref, true)} | {len(est) - len(ref)} | {min(psnr):.2f} - {max(psnr):.2f} |"
             )
     a.out.mkdir(parents=True, exist_ok=True)
     write_json(a.out / "seeds.json", rows)
