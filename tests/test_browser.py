@@ -332,23 +332,22 @@ def test_6_add_and_delete_a_novel_camera(app, browser):
     wait_until(lambda: name not in app.novel.gizmos, 20, what="the camera deleted")
 
 
-LARGEST_CANVAS = (
-    "return [...document.getElementsByTagName('canvas')]"
-    ".reduce((a, c) => c.width * c.height > a.width * a.height ? c : a)"
+LARGEST_CANVAS = (  # a JavaScript expression: the page's largest canvas, the 3D view
+    "[...document.getElementsByTagName('canvas')].reduce((a, c) => c.width * c.height > a.width * a.height ? c : a)"
 )
 
 
 def canvas_element(d):
     """The 3D canvas element (the largest canvas of the page), found in the page in one call: the
     panels add and drop small canvases (charts), so a list of handles can go stale while it is sized."""
-    return d.execute_script(LARGEST_CANVAS)
+    return d.execute_script(f"return {LARGEST_CANVAS}")
 
 
 def canvas_rect(d) -> tuple[float, float, float, float, float]:
     """The 3D canvas's CSS rectangle and the device pixel ratio, read in one script call."""
     r = d.execute_script(
-        LARGEST_CANVAS.replace("return ", "const c = ")
-        + "; const r = c.getBoundingClientRect(); return [r.x, r.y, r.width, r.height, window.devicePixelRatio]"
+        f"const r = {LARGEST_CANVAS}.getBoundingClientRect(); "
+        "return [r.x, r.y, r.width, r.height, window.devicePixelRatio]"
     )
     return tuple(float(v) for v in r)
 

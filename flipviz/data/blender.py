@@ -19,9 +19,9 @@ from flipviz.data.cameras import Camera, View
 from flipviz.data.dataset import (
     DatasetError,
     SceneData,
-    TooWide,
     camera_to_world,
     check_resolution,
+    check_width,
     read_transforms,
 )
 from flipviz.data.images import composite_on_white, read_rgba, save_rgba_png, uncomposite
@@ -87,8 +87,7 @@ def load_blender(
         if not os.path.isfile(ipath):  # False, not an error, for a name the system refuses (too long)
             raise DatasetError(f"image {ipath} listed in {jpath.name} not found")
         rgba = read_rgba(ipath)
-        if res is not None and res > rgba.shape[1]:
-            raise TooWide(res, rgba.shape[1], root)
+        check_width(res, rgba.shape[1], root)
         if size is None:
             size = rgba.shape[:2]
         elif rgba.shape[:2] != size:

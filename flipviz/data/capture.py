@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from flipviz.data.cameras import Camera, View, looked_at_point
-from flipviz.data.dataset import DatasetError, SceneData, TooWide
+from flipviz.data.dataset import DatasetError, SceneData, check_width
 from flipviz.data.images import composite_on_white, read_rgba
 
 log = logging.getLogger("flipviz.data")
@@ -139,8 +139,7 @@ def capture_view(
     if mask is not None:
         rgba[..., 3] = read_mask(mask, rgba.shape[:2])
     masked = mask is not None or bool((rgba[..., 3] < 1).any())
-    if res is not None and res > rgba.shape[1]:
-        raise TooWide(res, rgba.shape[1], ipath.parent)
+    check_width(res, rgba.shape[1], ipath.parent)
     rgb, alpha, focal = to_pinhole(rgba, intr, res)
     return View(
         Camera(c2w, rgb.shape[1], rgb.shape[0], focal, name=ipath.stem), rgb, alpha if masked else None, index=index

@@ -26,6 +26,12 @@ class TooWide(DatasetError):
         self.width = width
 
 
+def check_width(res: int | None, width: int, where: object) -> None:
+    """Images `width` px wide, asked for at --res `res` (None: their own): TooWide when they are narrower."""
+    if res is not None and res > width:
+        raise TooWide(res, width, where)
+
+
 def read_transforms(path: Path) -> dict:
     """A transforms JSON file (Blender or nerfstudio) as a dict; one-line DatasetError otherwise."""
     try:

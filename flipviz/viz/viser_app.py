@@ -132,8 +132,7 @@ def check_run_input(cfg: AppConfig) -> tuple[AppConfig, SceneData]:
     all before serving: bad input fails in one line, at once. Data narrower than --res (the app's 200
     px over a 100 px capture) trains at its own width: the settings come back with that --res."""
     cfg.validate()
-    if isinstance(cfg, AppConfig):
-        check_host(cfg.host, cfg.port)
+    check_host(cfg.host, cfg.port)
     if cfg.resume is not None:
         from flipviz.training.checkpoint import load_checkpoint
 

@@ -312,9 +312,7 @@ class MirrorLesson:
         self.plane = plane
         if self.quad is not None:
             self.quad.wxyz, self.quad.position = plane_wxyz(plane), plane.point
-        self.preview.show(cams, self.inputs, self.flipped, float(self.sphere.radius), self._preview_wanted())
-        if moved:
-            self.preview.unscored()
+        self.preview.show(cams, self.inputs, self.flipped, float(self.sphere.radius), self._preview_wanted(), moved)
         self._set_preview_visible()
         self.typed.show(plane, self.up, self.sphere.center)
         self.plane_text.content = plane_line(plane) + self._plane_note(plane)

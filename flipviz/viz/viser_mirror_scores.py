@@ -42,8 +42,11 @@ class PlanePreview:
         self.frame: viser.FrameHandle | None = None
         self.cams: list[Camera] = []
 
-    def show(self, cams: list[Camera], inputs: list[Camera], flipped: list, radius: float, visible: bool) -> None:
-        """Draw (first call of a run) or move the frustums to `cams`; link each to its input camera."""
+    def show(
+        self, cams: list[Camera], inputs: list[Camera], flipped: list, radius: float, visible: bool, moved: bool
+    ) -> None:
+        """Draw (first call of a run) or move the frustums to `cams`; link each to its input camera. `moved`:
+        the plane moved, so no score belongs to these poses yet (the frustums lose their score colours)."""
         scene, r = self.server.scene, radius
         self.cams = cams
         with self.server.atomic():
@@ -73,11 +76,9 @@ class PlanePreview:
             scene.add_line_segments(
                 "/preview/links", links, palette.CAMERA["mirror_init"], thickness=1.5, thickness_units="screen"
             )
-
-    def unscored(self) -> None:
-        """The plane moved: no score belongs to these poses yet."""
-        for h in self.handles:
-            h.color = palette.CAMERA["mirror_init"]
+            if moved:
+                for h in self.handles:
+                    h.color = palette.CAMERA["mirror_init"]
 
     def set_visible(self, visible: bool) -> None:
         if self.frame is not None:
