@@ -18,6 +18,7 @@ from flipviz.geometry.symmetry import plane_error
 from flipviz.model import GridConfig, ModelConfig, RadianceModel
 from flipviz.model.fit import fit
 from flipviz.training.config import TrainConfig
+from flipviz.training.events import Observer
 from flipviz.training.flip import MirrorPlane
 from flipviz.training.setup import build_run
 from flipviz.training.trainer import Trainer
@@ -237,3 +238,43 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     given = TrainConfig(**{**kw, "estimate_after": 0}, out=tmp_path / "c")
     fitted = build_run(given, tr.scene, tmp_path / "a" / "plane.json")
     assert fitted.warm_up == 0 and fitted.flip.start == 0  # --estimate-after 0 (the estimate given): mirrors from 0
+
+
+def test_the_fields_learning_rate_decays_again_from_the_step_the_mirrors_join(tmp_path):
+    """--join-lr restart: the side the mirrors bring is learnt from the full lr (the field's decay counts
+    again from --estimate-after); continue keeps one decay over the run; a field restarted after the
+    agreement gate's drop counts from its own start, as before."""
+    kw = dict(
+        scene="chair",
+        res=24,
+        steps=160,
+        batch_rays=256,
+        n_samples=24,
+        grid_res=(16,),
+        images_every=0,
+        log_every=1,
+        no_rrd=True,
+        checkpoint_every=0,
+        disagreement_limit=float("inf"),
+        estimate_after=40,
+        plane_file=tmp_path / "plane.json",  # estimated by the first run, read by the others
+    )
+    lrs: dict[str, dict[int, float]] = {}
+    for join_lr in ("restart", "continue"):
+        tr = Trainer(TrainConfig(**kw, join_lr=join_lr, out=tmp_path / join_lr))
+        assert tr.step == 40 and tr.spec.mirrors  # the mirrors joined: the lr of the steps from here
+        seen = lrs[join_lr] = {}
+        tr.add_observer(
+            type(
+                "Lr", (Observer,), {"on_step": lambda self, e, seen=seen: seen.update({e.step: e.scalars["lr_field"]})}
+            )()
+        )
+        tr.run()
+    lr0 = tr.model.make_optimizer().param_groups[0]["lr0"]
+    assert lrs["restart"][41] == pytest.approx(lr0)  # step index 40: the first with the mirrors
+    assert lrs["continue"][41] == pytest.approx(lr0 * 0.1 ** (40 / 160))
+    assert lrs["restart"][160] == pytest.approx(lrs["continue"][160], rel=0.05)  # both end near lr0 / 10
+    flip = Trainer(TrainConfig(**kw, out=tmp_path / "drop")).flip
+    assert flip.field_lr(10) == (10, 160) and flip.field_lr(50) == (10, 120)
+    flip.dropped_at = 60  # the gate dropped the mirrors and the field restarted: its own steps again
+    assert flip.field_lr(50) == (50, 160)

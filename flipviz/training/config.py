@@ -141,13 +141,22 @@ class TrainConfig:
     estimate_after: int = 150
     """With --mirror-plane auto and the grid field: the steps the run trains on its inputs alone before it
     estimates the plane from its own field; the mirrored views join then, and their schedules (the NLL's
-    warm-up, BA's and the plane's starts) count from there. 0, a run whose first quarter is shorter (under
-    600 steps at 150), or --field nerf (an MLP shows little surface that early): a separate short fit
-    estimates the plane before training (10-12 s on 2 cores; the search from the run's field takes 1.5-3
-    s) and the mirrors train from step 0. 150 steps gave estimates
-    as confident as the separate fit's on the chair's configuration 1 (0.28-0.30 over 5 seeds at 600
+    warm-up, BA's and the plane's starts, and the field's lr with --join-lr restart) count from there.
+    0, a run whose first quarter is shorter (under 600 steps at 150), or --field nerf (an MLP shows
+    little surface that early): a separate short fit estimates the plane before training (10-12 s on 2
+    cores; the search from the run's field takes 1.5-3 s) and the mirrors train from step 0. 150 steps
+    gave estimates as confident as the separate fit's on the chair's configuration 1 (0.28-0.30 over 5 seeds at 600
     steps, 0.31-0.35 over 3 at 3000), and 100 steps less so (0.18-0.20): chosen on the estimate's own
     score, never on a test view or the true plane."""
+    join_lr: Literal["restart", "continue"] = "restart"
+    """When the mirrored views join after --estimate-after: the field's learning-rate decay restarts
+    there (the unobserved side they bring is learnt from the full lr, as in a run that had them from step
+    0) or continues. Chosen on held-out orbit views (3 indices past each test view, never scored by the
+    protocol), configuration 1: restart / continue gave 24.35 / 23.97 dB on the chair (configurations
+    5 and 6: 24.07 / 23.72, 23.96 / 23.72), 23.73 / 23.45 on the turned chair, 21.92 / 21.69 on the
+    truck and 28.38 / 28.07 on the lamp (the mug's mirrors are dropped: the same run). With the true
+    plane from step 0, as a diagnostic only, the chair gave 24.41 / 24.05 / 23.97: restart closes the
+    gap the late join left (benchmarks/bench_join_lr.py, docs/results/join_lr)."""
     unconfident_plane: Literal["drop", "use"] = "use"
     """With --mirror-plane auto, when the estimate is not confident (geometry/symmetry.py: CONFIDENT): use
     (train with its mirrors, as with a confident one: the agreement gate, --disagreement-limit, drops them

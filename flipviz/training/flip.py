@@ -14,7 +14,8 @@ IV-A  Mirrored views (`mirrored_views`). Each input image is flipped left-right 
       (`lookat`: reflect the centre, back onto the least-squares sphere of the input centres, look
       at its centre). The plane is `--mirror-plane` (auto: estimated from the inputs alone,
       training/plane_estimate.py: the run trains its inputs alone for --estimate-after steps,
-      the plane is estimated from that field, and the mirrors join at that step, `Flip.start`).
+      the plane is estimated from that field, and the mirrors join at that step, `Flip.start`, with
+      the field's learning-rate decay counted again from there: `Flip.field_lr`, --join-lr).
       geometry/mirror.py computes the poses.
       flipviz adds: the plane is a parameter of training (`MirrorPlane`, `--refine-plane`). It has
       3 degrees of freedom, every mirrored camera follows it (c2w(P) = S_P S_P0 c2w_init, a rigid
@@ -209,6 +210,8 @@ class Flip:
         start: int = 0,
     ) -> None:
         self.ts, self.steps, self.start = ts, cfg.steps, start
+        self.lr_from = start if cfg.join_lr == "restart" else 0  # the step the field's lr decay counts from
+        self.after_drop = cfg.after_drop
         span = max(1, cfg.steps - start)  # the steps the mirrors train
         self.refiner = pose_refiner(ts, span, device)
         self.objective = objective(cfg, beta_min, start)
@@ -236,6 +239,14 @@ class Flip:
         are dropped, the inputs' (the bank holds the inputs' rays first, then the mirrors')."""
         inputs_only = self.dropped_at is not None or step < self.start
         return self.ts.bank.sample(n, generator, self.kept_rays if inputs_only else None)
+
+    def field_lr(self, field_step: int) -> tuple[int, int]:
+        """(step, steps) of the field's learning-rate decay at `field_step`. With --join-lr restart, the
+        decay counts again from the step the mirrors joined: the side they bring starts at the full lr, as
+        in a run that had them from step 0 (a field restarted after a drop counts from its own start)."""
+        if field_step < self.lr_from or (self.dropped_at is not None and self.after_drop == "restart"):
+            return field_step, self.steps
+        return field_step - self.lr_from, self.steps - self.lr_from
 
     def poses(self) -> Tensor:
         """(V, 4, 4) the current poses: inputs fixed; mirrors S_P S_P0 c2w_init Exp(xi) (IV-A, IV-B)."""

@@ -214,7 +214,7 @@ class Trainer:
         with signals_deferred():  # an interrupt never leaves half-upsampled grids or a stale optimiser
             if self.model.update_schedule(field_step, cfg.steps):  # grids upsampled: new parameters
                 self.opt_field = self.model.make_optimizer()
-        self.model.adjust_lr(self.opt_field, field_step, cfg.steps)
+        self.model.adjust_lr(self.opt_field, *self.flip.field_lr(field_step))
         # (R,) random pixels: the inputs' alone before the mirrors join, and after a drop
         idx = self.flip.sample(cfg.batch_rays, self._gen, self.step)
         view = bank.view[idx]
