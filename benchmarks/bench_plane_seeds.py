@@ -1,7 +1,7 @@
 """How steady is the plane? (a script) The same inputs trained with several seeds: the spread of the
 estimated plane (`auto`) and of the plane after training refines it (`--refine-plane`).
 
-    python benchmarks/bench_plane_seeds.py [--scenes chair,chair-turned] [--configs 1] [--seeds 0,1,2,3,4]
+    python benchmarks/bench_plane_seeds.py [--scenes chair,chair-turned,lego] [--configs 1] [--seeds 0,1,2,3,4]
 
 Spread: the largest angle between two seeds' planes (degrees) and the largest difference of their
 offsets along the first seed's normal; the error against the scene's true plane beside it. Writes
@@ -11,6 +11,7 @@ seeds.json and seeds.md into --out.
 from __future__ import annotations
 
 import itertools
+import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,7 @@ from flipviz.training.config import TrainConfig
 from flipviz.training.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
+LEGO = Path(os.environ.get("FLIPVIZ_LEGO", ROOT.parent / "shared/data/nerf_synthetic/lego"))
 
 
 @dataclass
@@ -34,6 +36,8 @@ class Args:
     configs: str = "1"
     seeds: str = "0,1,2,3,4"
     threads: int = 2
+    lego: Path = LEGO
+    """The scene `lego` reads this NeRF-synthetic folder (it has no true plane here)."""
     out: Path = ROOT / "docs/results/plane_refine"
 
 
@@ -72,6 +76,7 @@ def main(a: Args) -> None:
                     tr = Trainer(
                         TrainConfig(
                             scene=scene,
+                            data=a.lego if scene == "lego" else None,
                             config=config,
                             seed=seed,
                             out=Path(tmp) / "run",
@@ -82,7 +87,8 @@ def main(a: Args) -> None:
                         )
                     )
                     m = tr.run()
-                refined = tr.flip.current_plane()  # None: the agreement gate dropped the mirrors
+                dropped = tr.flip.dropped_at is not None or not tr.spec.mirrors  # by the agreement gate
+                refined = None if dropped else tr.flip.current_plane()  # a dropped plane froze where it was
                 est.append(tr.mirrors.plane)
                 ref += [refined] if refined is not None else []
                 psnr.append(m["psnr"])
@@ -98,6 +104,7 @@ def main(a: Args) -> None:
                         "refined": refined.to_dict() if refined is not None else None,
                         "estimate_error": error(est[-1]),
                         "refined_error": error(refined),
+                        "dropped_at": tr.flip.dropped_at,
                     }
                 )
                 print(rows[-1])

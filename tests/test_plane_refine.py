@@ -185,6 +185,20 @@ def test_both_fields_move_the_plane_and_a_resumed_run_keeps_it(tmp_path, field):
     assert "refined" not in fixed.run()["plane"] and fixed.flip.current_plane() is None
 
 
+SHORT_AUTO = dict(  # a short --mirror-plane auto run on the chair whose field shows a surface at its join
+    scene="chair",
+    res=24,
+    steps=160,
+    batch_rays=256,
+    n_samples=24,
+    grid_res=(16,),
+    images_every=0,
+    no_rrd=True,
+    disagreement_limit=float("inf"),
+    estimate_after=40,  # a quarter of this short run (150 steps by default)
+)
+
+
 @pytest.mark.slow
 def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(tmp_path):
     """--mirror-plane auto (issue 20 item 3): the run trains its inputs alone for --estimate-after steps,
@@ -195,18 +209,7 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     was 52.9 degrees off)."""
     import json
 
-    kw = dict(
-        scene="chair",
-        res=24,
-        steps=160,
-        batch_rays=256,
-        n_samples=24,
-        grid_res=(16,),
-        images_every=0,
-        no_rrd=True,
-        disagreement_limit=float("inf"),
-        estimate_after=40,  # a quarter of this short run (150 steps by default)
-    )
+    kw = SHORT_AUTO
     assert TrainConfig().estimate_after == 150
     tr = Trainer(TrainConfig(**kw, out=tmp_path / "a", checkpoint_every=80))
     K = 40
@@ -240,25 +243,12 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     assert fitted.warm_up == 0 and fitted.flip.start == 0  # --estimate-after 0 (the estimate given): mirrors from 0
 
 
+@pytest.mark.slow
 def test_the_fields_learning_rate_decays_again_from_the_step_the_mirrors_join(tmp_path):
     """--join-lr restart: the side the mirrors bring is learnt from the full lr (the field's decay counts
     again from --estimate-after); continue keeps one decay over the run; a field restarted after the
     agreement gate's drop counts from its own start, as before."""
-    kw = dict(
-        scene="chair",
-        res=24,
-        steps=160,
-        batch_rays=256,
-        n_samples=24,
-        grid_res=(16,),
-        images_every=0,
-        log_every=1,
-        no_rrd=True,
-        checkpoint_every=0,
-        disagreement_limit=float("inf"),
-        estimate_after=40,
-        plane_file=tmp_path / "plane.json",  # estimated by the first run, read by the others
-    )
+    kw = dict(**SHORT_AUTO, log_every=1, checkpoint_every=0, plane_file=tmp_path / "plane.json")  # one estimate
     lrs: dict[str, dict[int, float]] = {}
     for join_lr in ("restart", "continue"):
         tr = Trainer(TrainConfig(**kw, join_lr=join_lr, out=tmp_path / join_lr))
