@@ -154,9 +154,15 @@ def test_novel_camera_render(app):
             from viser_client import wxyz_look_at
 
             await c.move_gizmo(name, (3.0, -3.0, 2.0), wxyz_look_at(np.array([3.0, -3, 2]), np.zeros(3)))
-            await asyncio.sleep(0.2)
-            gizmo = app.novel.gizmos[name.split("/")[-1]]
-            assert np.allclose(gizmo.position, (3.0, -3.0, 2.0))
+            key = name.split("/")[-1]
+            t = time.monotonic()  # the app sends the gizmo before it selects the new camera: wait for both
+            while not (
+                key in app.novel.gizmos
+                and app.novel.select.value == key
+                and np.allclose(app.novel.gizmos[key].position, (3.0, -3.0, 2.0))
+            ):
+                assert time.monotonic() - t < 60, (app.novel.select.value, list(app.novel.gizmos))
+                await asyncio.sleep(0.05)
             n = len(c.messages)
             await c.click("Render novel view")
             uuid = c.gui["Novel render"]["uuid"]
