@@ -103,7 +103,7 @@ def capture_shot(args: Args) -> None:
     from flipviz.data.driveby import export_driveby
 
     data = export_driveby("chair-turned", Path(tempfile.mkdtemp()) / "drive", res=100)
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         data=data, mirror_plane="auto", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100
     )
     cfg, scene = check_run_input(cfg)  # as `python app.py --data`: the 100 px capture trains at 100 px
@@ -127,8 +127,8 @@ def compare_shot(args: Args) -> None:
     from flipviz.training.run import train
 
     b_dir = Path(tempfile.mkdtemp()) / "chair-bl"
-    train(TrainConfig(scene="chair", method="bl", out=b_dir, no_rrd=True))
-    cfg = AppConfig(
+    train(TrainConfig.from_settings(scene="chair", method="bl", out=b_dir, no_rrd=True))
+    cfg = AppConfig.from_settings(
         scene="chair",
         no_rrd=True,
         port=0,
@@ -164,7 +164,7 @@ def plane_shot(args: Args) -> None:
     from flipviz.data.scenes import SCENES
 
     plane = turned_plane_arg(SCENES["chair"].symmetry_plane, 10.0, 0.0)
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene="chair",
         mirror_plane=plane,
         no_rrd=True,
@@ -188,7 +188,9 @@ def plane_shot(args: Args) -> None:
 
 
 def agreement_shot(args: Args) -> None:
-    cfg = AppConfig(scene="mug", no_rrd=True, port=0, images_every=100, out=Path(tempfile.mkdtemp()) / "run")
+    cfg = AppConfig.from_settings(
+        scene="mug", no_rrd=True, port=0, images_every=100, out=Path(tempfile.mkdtemp()) / "run"
+    )
     app = App(cfg).start()
     try:
         wait_until(
@@ -209,7 +211,7 @@ def agreement_shot(args: Args) -> None:
 
 
 def fog_shot(args: Args) -> None:
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene="chair",
         method="bl",
         mirror_plane="official",
@@ -241,7 +243,7 @@ def fog_shot(args: Args) -> None:
 @contextmanager
 def chair_in_browser(args: Args, **settings) -> Iterator[tuple[App, object]]:
     """The chair training at the defaults (but `settings`), past `args.steps_before` steps, in headless Chromium."""
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene="chair", no_rrd=True, port=0, out=Path(tempfile.mkdtemp()) / "run", images_every=100, **settings
     )
     app = App(cfg).start()

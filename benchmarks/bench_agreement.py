@@ -19,7 +19,7 @@ import torch
 import tyro
 
 from flipviz.files import write_json, write_text
-from flipviz.training.config import TrainConfig
+from flipviz.training.config import FlipConfig, TrainConfig
 from flipviz.training.events import Observer, StepEvent
 from flipviz.training.trainer import Trainer
 
@@ -54,7 +54,7 @@ def main(a: Args) -> None:
     for scene in a.scenes.split(","):
         for config in (int(c) for c in a.configs.split(",")):
             with tempfile.TemporaryDirectory() as tmp:
-                cfg = TrainConfig(
+                cfg = TrainConfig.from_settings(
                     scene=scene,
                     config=config,
                     steps=a.steps,
@@ -63,7 +63,7 @@ def main(a: Args) -> None:
                     images_every=0,
                     checkpoint_every=0,
                     unconfident_plane="drop" if a.gate else "use",
-                    disagreement_limit=TrainConfig.disagreement_limit if a.gate else float("inf"),
+                    disagreement_limit=FlipConfig.disagreement_limit if a.gate else float("inf"),
                     estimate_after=a.estimate_after,
                 )
                 tr = Trainer(cfg)

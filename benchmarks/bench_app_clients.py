@@ -129,7 +129,7 @@ def measure(app: App, n: int, seconds: float, hostile: bool = False) -> dict:
 
 
 def main(bc: BenchConfig) -> list[dict]:
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene=bc.scene,
         res=bc.res,
         batch_rays=bc.batch_rays,

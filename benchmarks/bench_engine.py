@@ -20,7 +20,7 @@ import json
 import os
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +65,7 @@ def render_ms(trainer: Trainer, size: int = 200, repeats: int = 3) -> float:
 
 
 def run_curve(cfg: TrainConfig, eval_every: int, seconds: float | None = None) -> dict:
-    cfg = replace(cfg, images_every=eval_every, checkpoint_every=0, log_every=10)
+    cfg = cfg.with_settings(images_every=eval_every, checkpoint_every=0, log_every=10)
     tr = Trainer(cfg)
     curve = Curve(tr, seconds)
     tr.add_observer(curve)
@@ -76,7 +76,7 @@ def run_curve(cfg: TrainConfig, eval_every: int, seconds: float | None = None) -
         points.append((tr.train_seconds, tr.step, final))
     t_conv, s_conv = time_to_within(points, final)
     return {
-        "field": cfg.field,
+        "field": cfg.engine.field,
         "scene": m["scene"],
         "method": cfg.method,
         "steps": tr.step,
@@ -118,11 +118,11 @@ def main(args: Args) -> None:
                 print(f"skip lego: {args.lego} not found")
                 continue
             data = args.lego
-        base = TrainConfig(scene=name, data=data, method="flip+u", res=args.res, out=out / f"{name}-grid")
+        base = TrainConfig.from_settings(scene=name, data=data, method="flip+u", res=args.res, out=out / f"{name}-grid")
         if args.steps:
-            base = replace(base, steps=args.steps)
+            base = base.with_settings(steps=args.steps)
         g = run_curve(base, args.eval_every)
-        nerf_cfg = replace(base, field="nerf", out=out / f"{name}-nerf", steps=100000, batch_rays=1024)
+        nerf_cfg = base.with_settings(field="nerf", out=out / f"{name}-nerf", steps=100000, batch_rays=1024)
         n = run_curve(nerf_cfg, args.nerf_eval_every, seconds=args.nerf_seconds)
         t_same, _ = time_to_within(n["curve"], g["final_psnr"], tol=0.0)
         speedup = (t_same / g["seconds_to_final_0.5dB"]) if np.isfinite(t_same) else None

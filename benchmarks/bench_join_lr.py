@@ -65,7 +65,7 @@ def train_one(job: tuple[str, int, str]) -> dict:
     scene, config, variant = job
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = TrainConfig(
+        cfg = TrainConfig.from_settings(
             scene=scene,
             config=config,
             no_rrd=True,

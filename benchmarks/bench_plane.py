@@ -93,7 +93,7 @@ def training(args: Args) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         for c in (int(x) for x in args.train_configs.split(",")):
             for method, plane, ba, pose in runs:
-                cfg = TrainConfig(
+                cfg = TrainConfig.from_settings(
                     scene="chair-turned",
                     method=method,
                     config=c,

@@ -74,7 +74,7 @@ def main(a: Args) -> None:
             for seed in (int(s) for s in a.seeds.split(",")):
                 with tempfile.TemporaryDirectory() as tmp:
                     tr = Trainer(
-                        TrainConfig(
+                        TrainConfig.from_settings(
                             scene=scene,
                             data=a.lego if scene == "lego" else None,
                             config=config,

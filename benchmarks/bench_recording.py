@@ -73,7 +73,9 @@ def main(args: Args) -> None:
     from flipviz.viz.rerun_observer import make_rerun_observer, optimize_recording
 
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = TrainConfig(scene=args.scene, method=args.method, steps=args.steps, res=args.res, out=Path(tmp) / "run")
+        cfg = TrainConfig.from_settings(
+            scene=args.scene, method=args.method, steps=args.steps, res=args.res, out=Path(tmp) / "run"
+        )
         trainer = Trainer(cfg)
         obs = make_rerun_observer(cfg, trainer.run_dir, optimize=False)
         trainer.add_observer(obs)

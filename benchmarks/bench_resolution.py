@@ -95,7 +95,7 @@ def train_one(job: tuple[str, str, str, int, int, str]) -> dict:
     width, grid_res = SETTINGS[setting]
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = TrainConfig(
+        cfg = TrainConfig.from_settings(
             scene=scene_name,
             data=LEGO if scene_name == "lego" else None,
             method=method,

@@ -52,7 +52,7 @@ def measure(args: Args) -> dict:
     t_import = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         data = {"data": LEGO} if args.scene == "lego" else {}
-        cfg = TrainConfig(
+        cfg = TrainConfig.from_settings(
             scene=args.scene,
             method=args.method,
             config=args.config,

@@ -59,7 +59,7 @@ def train_one(job: tuple[str, str, int]) -> dict:
     lever, method, config = job
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = TrainConfig(
+        cfg = TrainConfig.from_settings(
             scene="lego",
             data=LEGO,
             method=method,

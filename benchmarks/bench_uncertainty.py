@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import json
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +65,7 @@ def _train(cfg_dict: dict) -> dict:
     out = Path(cfg_dict["out"])
     if (out / "metrics.json").is_file():
         return json.loads((out / "metrics.json").read_text())
-    _, m = train(TrainConfig(**cfg_dict))
+    _, m = train(TrainConfig.from_settings(**cfg_dict))
     return m
 
 
@@ -138,7 +138,7 @@ def main(args: Args) -> None:
     jobs: dict[tuple[str, int, str], dict] = {}
     for s in scenes:
         for n in configs:
-            base = TrainConfig(
+            base = TrainConfig.from_settings(
                 scene=s,
                 config=n,
                 res=args.res,
@@ -148,9 +148,9 @@ def main(args: Args) -> None:
                 mirror_plane=args.plane,
                 unconfident_plane="use",
             )
-            jobs[(s, n, "B/L")] = replace(base, method="bl", out=run_folder(args, s, n, "bl")).to_dict()
+            jobs[(s, n, "B/L")] = base.with_settings(method="bl", out=run_folder(args, s, n, "bl")).to_dict()
             for name, change in VARIANTS.items():
-                cfg = replace(base, method="flip+u", out=run_folder(args, s, n, name), **change)
+                cfg = base.with_settings(method="flip+u", out=run_folder(args, s, n, name), **change)
                 jobs[(s, n, name)] = cfg.to_dict()
     with ProcessPoolExecutor(args.workers) as pool:
         metrics = dict(zip(jobs, pool.map(_train, jobs.values())))

@@ -63,9 +63,9 @@ def main(args: Args) -> None:
     if args.runs is None:
         runs = []
         for method in ("bl", "flip+u"):
-            cfg = TrainConfig(scene="chair", method=method, out=tmp / method)
+            cfg = TrainConfig.from_settings(scene="chair", method=method, out=tmp / method)
             train(cfg)
-            runs.append(cfg.out)
+            runs.append(cfg.output.out)
     else:
         runs = list(args.runs)
     rows = [

@@ -139,7 +139,7 @@ def browser_orbit(app: App, seconds: float) -> dict | None:
 
 
 def main(args: Args) -> dict:
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene="chair", no_rrd=True, port=0, checkpoint_every=0, eval_on_stop=False, out=Path(tempfile.mkdtemp()) / "run"
     )
     app = App(cfg).start()

@@ -43,7 +43,7 @@ MUTATIONS = (
     Mutation(
         "(b) the MSE warm-up is removed",
         "flipviz/training/flip.py",
-        "nll_start = start + int(cfg.uncertainty_start * (cfg.steps - start))",
+        "nll_start = start + int(cfg.uncertainty_start * (steps - start))",
         "nll_start = start",
     ),
     Mutation(

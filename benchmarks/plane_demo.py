@@ -113,7 +113,7 @@ def main(cfg: DemoConfig) -> None:
         raise SystemExit(f"{cfg.scene} has no known symmetry plane")
     plane = turned_plane_arg(scene.symmetry_plane, cfg.turn_deg, cfg.offset)
     with tempfile.TemporaryDirectory() as tmp:
-        tcfg = TrainConfig(
+        tcfg = TrainConfig.from_settings(
             scene=cfg.scene,
             config=cfg.config,
             steps=cfg.steps,

@@ -57,20 +57,20 @@ def _run_train(cfg: TrainConfig) -> int:
 
     logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
     cfg.validate()
-    if cfg.out is None:
-        cfg.out = default_run_dir(cfg)
+    if cfg.output.out is None:
+        cfg.output.out = default_run_dir(cfg)
     trainer = make_trainer(cfg)  # inputs checked and the run folder locked before anything is written
     trainer.add_observer(ProgressObserver())
     rerun = None
     try:
-        if not cfg.no_rrd or cfg.rerun_serve:
+        if not cfg.output.no_rrd or cfg.output.rerun_serve:
             from flipviz.viz.rerun_observer import make_rerun_observer
 
-            rerun = make_rerun_observer(cfg, cfg.out, bake=trainer.point_cloud)
+            rerun = make_rerun_observer(cfg, cfg.output.out, bake=trainer.point_cloud)
             trainer.add_observer(rerun)
         with logging_redirect_tqdm():  # a warning during training is a line of its own above the bar
             metrics = trainer.run()  # Ctrl-C inside the loop ends it with status "stopped"
-        print(f"[flipviz] run folder: {cfg.out}")
+        print(f"[flipviz] run folder: {cfg.output.out}")
         if "psnr" in metrics:
             lp = metrics.get("lpips")
             lp_s = f"{lp:.3f}" if isinstance(lp, float) else f"{lp} ({metrics.get('lpips_reason', '')})"
@@ -102,7 +102,7 @@ def _run_train(cfg: TrainConfig) -> int:
         if plane.get("dropped_at") is not None:
             print(
                 f"[flipviz] mirrored views dropped at step {plane['dropped_at']}: they disagreed with the inputs "
-                f"(disagreement {plane['disagreement']:.2f} > --disagreement-limit {cfg.disagreement_limit:g})"
+                f"(disagreement {plane['disagreement']:.2f} > --disagreement-limit {cfg.flip.disagreement_limit:g})"
                 + ("; the field then trained afresh on the inputs alone, as B/L" if plane.get("restarted_at") else "")
             )
         elif plane.get("trained") is False:
@@ -112,7 +112,7 @@ def _run_train(cfg: TrainConfig) -> int:
             )
         if rerun is not None and rerun.opts.path is not None:
             print(f"[flipviz] recording: rerun {rerun.opts.path}")
-        if rerun is not None and cfg.rerun_serve:
+        if rerun is not None and cfg.output.rerun_serve:
             _serve_until_interrupted(rerun.viewer_url)
     finally:  # also on Ctrl-C before the loop: the folder is free again, the recording readable
         trainer.close()

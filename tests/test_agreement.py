@@ -4,7 +4,6 @@ inputs are measured on the training batches and dropped mid-training."""
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -52,7 +51,7 @@ def chair16():
 
 
 def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(tmp_path, chair16):
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         scene="chair",
         res=16,
         steps=100,
@@ -82,7 +81,7 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
     resumed = build_run(cfg, chair16).flip  # a checkpoint keeps the verdict
     resumed.load_state_dict(flip.state_dict())
     assert resumed.dropped_at == 31 and resumed.agreement.ratio == pytest.approx(2.1)
-    never = build_run(replace(cfg, disagreement_limit=math.inf), chair16).flip
+    never = build_run(cfg.with_settings(disagreement_limit=math.inf), chair16).flip
     never.agreement.mirror, never.agreement.input = 1e6, 1.0
     never.step(50)
     assert never.dropped_at is None
@@ -103,7 +102,9 @@ def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_pat
         eval_on_stop=False,
     )
     flip = Trainer(
-        TrainConfig(method="flip+u", mirror_plane="scene", disagreement_limit=1.0, out=tmp_path / "flip", **base),
+        TrainConfig.from_settings(
+            method="flip+u", mirror_plane="scene", disagreement_limit=1.0, out=tmp_path / "flip", **base
+        ),
         chair16,
     )
     steps = Steps()
@@ -112,23 +113,23 @@ def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_pat
     at = m["plane"]["dropped_at"]
     assert at is not None and m["plane"]["restarted_at"] == at and m["steps"] == at + 60, m["plane"]
     assert steps.events[-1].step == steps.events[-1].total_steps == at + 60
-    bl = Trainer(TrainConfig(method="bl", out=tmp_path / "bl", **base), chair16)
+    bl = Trainer(TrainConfig.from_settings(method="bl", out=tmp_path / "bl", **base), chair16)
     bl.run()
     ours, theirs = flip.model.state_dict(), bl.model.state_dict()
     assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours)
-    cfg = replace(flip.cfg, resume=str(tmp_path / "flip"))
+    cfg = flip.cfg.with_settings(resume=str(tmp_path / "flip"))
     resumed = Trainer(cfg, chair16)
     assert resumed.field_start == at and resumed.total_steps == at + 60 and not resumed.model.with_beta
     assert all(torch.equal(resumed.model.state_dict()[k], ours[k]) for k in ours)
     resumed.close()
-    kept = Trainer(replace(flip.cfg, after_drop="continue", out=tmp_path / "continue"), chair16).run()
+    kept = Trainer(flip.cfg.with_settings(after_drop="continue", out=tmp_path / "continue"), chair16).run()
     assert kept["plane"]["dropped_at"] == at and kept["steps"] == 60 and kept["plane"]["restarted_at"] is None
 
 
 @pytest.mark.parametrize("value", [float("nan"), 0.5])
 def test_a_disagreement_limit_below_one_or_nan_is_one_line(value):
     with pytest.raises(UserError, match="--disagreement-limit must be in"):
-        TrainConfig(disagreement_limit=value).validate()
+        TrainConfig.from_settings(disagreement_limit=value).validate()
 
 
 class Steps(Observer):
@@ -147,7 +148,7 @@ def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
     """Flip+U with the plane x = 0 (the chair's true plane; it maps the mug's handle to where it is not),
     configuration 4, 32 px, at the limit measured for mirrors that train from step 0 (2.0; the default,
     3.25, is for mirrors that join after the plane is estimated from the run's field)."""
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         scene=scene,
         config=4,
         res=32,

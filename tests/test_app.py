@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene="chair",
         res=32,
         steps=100_000,
@@ -108,8 +108,8 @@ def test_plane_gizmo_roundtrip():
 
 def test_cli_config_and_help(monkeypatch, capsys):
     cfg = tyro.cli(AppConfig, args="--scene chair --method flip --config 3 --port 8123 --host 127.0.0.1".split())
-    assert (cfg.scene, cfg.method, cfg.config, cfg.port, cfg.host) == ("chair", "flip", 3, 8123, "127.0.0.1")
-    assert type(train_config(cfg)).__name__ == "TrainConfig" and train_config(cfg).config == 3
+    assert (cfg.data.scene, cfg.method, cfg.data.config, cfg.port, cfg.host) == ("chair", "flip", 3, 8123, "127.0.0.1")
+    assert type(train_config(cfg)).__name__ == "TrainConfig" and train_config(cfg).data.config == 3
     # `python app.py --scene chair --help`, run in-process (no second interpreter to import torch)
     monkeypatch.setattr(sys, "argv", ["app.py", "--scene", "chair", "--help"])
     with pytest.raises(SystemExit) as e:
@@ -391,7 +391,7 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
     from flipviz.training.run import train
     from flipviz.training.saved_run import open_run
 
-    b_cfg = TrainConfig(
+    b_cfg = TrainConfig.from_settings(
         scene="chair",
         method="bl",
         res=32,
@@ -713,7 +713,9 @@ def test_train_b_next_to_the_running_a(app):
         b = app.compare.b
         assert b.training and b.trainer.cfg.method == "bl" and b.trainer.run_dir.name == f"{app._run_dir().name}-B-bl"
         assert b.trainer.scene.name == app.setup.scene and b.trainer.run_dir.parent == app._run_dir().parent
-        assert b.trainer.cfg.preset == "authors" and b.trainer.cfg.background == "last"  # B in the authors' setting
+        assert (
+            b.trainer.cfg.preset == "authors" and b.trainer.cfg.engine.background == "last"
+        )  # B in the authors' setting
         assert app.cfg.preset == "fast" and "B/L (authors)" in b.name  # A stays in flipviz's
     finally:
         app.compare.stop()
@@ -724,7 +726,7 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
     so the Flip+U run trains on no mirrored view, and the Mirror tab says so and why."""
     from flipviz.viz import palette
 
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene="chair",
         res=24,
         steps=100_000,
@@ -829,7 +831,11 @@ def test_restart_with_another_method(app):
         b = app.compare.b
         app.compare.stop()
     assert app.setup is not old and app.cfg.method == "bl" and app.restarts == 1
-    assert app.cfg.preset == "authors" and app.trainer.cfg.background == "last" and app.trainer.cfg.density_on == "all"
+    assert (
+        app.cfg.preset == "authors"
+        and app.trainer.cfg.engine.background == "last"
+        and app.trainer.cfg.flip.density_on == "all"
+    )
     first, second = app.run_dirs[-2], app.run_dirs[-1]  # beside each other, never nested
     assert second.parent == first.parent and second.name == f"{first.name}-restart1"
     assert (first / "checkpoint.pt").is_file() and b.trainer.run_dir == first and b.trainer.cfg.method == "flip+u"

@@ -135,11 +135,11 @@ def test_beta_from_position_does_not_see_the_view_direction(field):
 
 def test_preset_authors_sets_each_choice_and_a_given_value_wins():
     cfg = preset_config("authors")
-    assert {k: getattr(cfg, k) for k in AUTHORS_PRESET} == AUTHORS_PRESET
-    assert (cfg.field, cfg.steps) == ("grid", 600)  # the fast grid, unlike --preset paper
-    assert preset_config("authors", background="learned").background == "learned"
-    assert {k: getattr(preset_config("paper"), k) for k in AUTHORS_PRESET} == AUTHORS_PRESET
-    obj = flip.objective(cfg, B_MIN)
+    assert {k: cfg.settings()[k] for k in AUTHORS_PRESET} == AUTHORS_PRESET
+    assert (cfg.engine.field, cfg.engine.steps) == ("grid", 600)  # the fast grid, unlike --preset paper
+    assert preset_config("authors", background="learned").engine.background == "learned"
+    assert {k: preset_config("paper").settings()[k] for k in AUTHORS_PRESET} == AUTHORS_PRESET
+    obj = flip.objective(cfg.flip, cfg.engine.steps, B_MIN)
     assert (obj.channels, obj.density_on) == ("mean", "all")
 
 
@@ -173,8 +173,8 @@ def test_switching_presets_resets_what_the_old_one_chose_and_keeps_your_own_sett
     from flipviz.training.config import AUTHORS_PRESET, with_preset
 
     mine = preset_config("authors", n_samples=32, background="learned")  # two settings of my own
-    assert mine.density_on == "all" and mine.background == "learned"
+    assert mine.flip.density_on == "all" and mine.engine.background == "learned"
     fast = with_preset(mine, "fast")
-    assert fast.preset == "fast" and fast.n_samples == 32 and fast.background == "learned"
-    assert all(getattr(fast, k) == getattr(TrainConfig(), k) for k in AUTHORS_PRESET if k != "background")
+    assert fast.preset == "fast" and fast.engine.n_samples == 32 and fast.engine.background == "learned"
+    assert all(fast.settings()[k] == TrainConfig().settings()[k] for k in AUTHORS_PRESET if k != "background")
     assert with_preset(fast, "authors") == mine  # the round trip is the config it started from

@@ -24,7 +24,7 @@ from flipviz.bench.paper_numbers import METHOD_ORDER, TABLE2, TABLE3
 from flipviz.bench.runner import resolve_scene
 from flipviz.bench.tables import render_markdown
 from flipviz.data.dataset import DatasetError
-from flipviz.training.config import TrainConfig
+from flipviz.training.config import EngineConfig, TrainConfig
 
 pytestmark = pytest.mark.bench
 
@@ -194,12 +194,16 @@ def _png_psnr(pred: Path, gt: Path) -> float:
 def test_bench_runs_use_the_train_defaults():
     """A bench run is `flipviz train` with its defaults, except what the bench sets on purpose."""
     spec = plan(BenchConfig(scenes="chair", methods="flip+u", configs="3"))[0]
-    got, want = spec.train_config(BenchConfig()).to_dict(), TrainConfig(method="flip+u", config=3).to_dict()
+    got, want = (
+        spec.train_config(BenchConfig()).to_dict(),
+        TrainConfig.from_settings(method="flip+u", config=3).to_dict(),
+    )
     differ = {k for k in want if got[k] != want[k]}
     assert differ == {"no_rrd", "images_every"}, differ
-    assert got["n_samples"] == TrainConfig.n_samples == 64
-    shared = {f.name for f in fields(BenchConfig)} & {f.name for f in fields(TrainConfig)} - {"out"}
-    assert {k: getattr(BenchConfig, k) for k in shared} == {k: getattr(TrainConfig, k) for k in shared}
+    assert got["n_samples"] == EngineConfig.n_samples == 64
+    train = TrainConfig().settings()
+    shared = {f.name for f in fields(BenchConfig)} & set(train) - {"out"}
+    assert {k: getattr(BenchConfig(), k) for k in shared} == {k: train[k] for k in shared}
 
 
 def test_flip_runs_of_a_configuration_share_one_estimated_plane(tmp_path: Path, cache: Path, monkeypatch) -> None:
@@ -344,7 +348,7 @@ def test_plan_keys_and_ablation(tmp_path: Path) -> None:
     # of a configuration share one estimated plane: one file per configuration).
     assert [x.method for x in specs[:5]] == ["bl", "bl+u", "flip", "upper", "flip+u"]
     files = {
-        (x.scene, x.config, x.method): x.train_config(cfg, tmp_path / x.key(cfg), tmp_path / "planes").plane_file
+        (x.scene, x.config, x.method): x.train_config(cfg, tmp_path / x.key(cfg), tmp_path / "planes").flip.plane_file
         for x in specs
     }
     assert (
@@ -355,7 +359,7 @@ def test_plan_keys_and_ablation(tmp_path: Path) -> None:
     )
     assert files[("chair", 1, "bl")] is None and files[("chair", 1, "flip")].parent == tmp_path / "planes"
     official = BenchConfig(**{**cfg.__dict__, "mirror_plane": "official"})
-    assert specs[0].train_config(official, tmp_path, tmp_path / "planes").plane_file is None
+    assert specs[0].train_config(official, tmp_path, tmp_path / "planes").flip.plane_file is None
 
 
 def test_parsing_and_scene_errors(tmp_path: Path) -> None:

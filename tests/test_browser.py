@@ -33,7 +33,7 @@ pytestmark = [
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     os.environ.setdefault("FLIPVIZ_CACHE", str(tmp_path_factory.mktemp("cache")))
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene="chair",
         res=48,
         steps=100_000,
@@ -371,9 +371,9 @@ def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, tmp_path_fac
     from flipviz.training.saved_run import open_run
     from flipviz.viz.viser_common import camera_from_viser
 
-    b_dir = app.cfg.out.parent / "b-bl"  # beside A's folder: inside the app's browse roots
+    b_dir = app.cfg.output.out.parent / "b-bl"  # beside A's folder: inside the app's browse roots
     train(
-        TrainConfig(
+        TrainConfig.from_settings(
             scene="chair",
             method="bl",
             res=32,
@@ -531,7 +531,7 @@ def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory
     """Issue 26 item 4: the chair's estimate from 24-px inputs is doubted and, with --unconfident-plane drop,
     its mirrors dropped; one button draws them, scores them and colours them red-yellow-green, though
     training still ignores them."""
-    cfg = AppConfig(
+    cfg = AppConfig.from_settings(
         scene="chair",
         res=24,
         steps=100_000,

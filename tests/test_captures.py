@@ -249,7 +249,9 @@ def test_colmap_text_and_binary_models(tmp_path, binary, caplog):
     # no masks: the inputs train on every pixel, the flipped images only on rays through the box
     from flipviz.training.setup import build_run
 
-    ts = build_run(TrainConfig(data=root, res=W, method="flip", inputs="all", mirror_plane="opposite"), scene).training
+    ts = build_run(
+        TrainConfig.from_settings(data=root, res=W, method="flip", inputs="all", mirror_plane="opposite"), scene
+    ).training
     per_view = np.bincount(ts.bank.view.numpy(), minlength=len(ts.views))
     assert all(per_view[i] == W * W for i in range(len(cams)))
     assert all(0 < per_view[i] < W * W for i in ts.mirror_ids)
@@ -306,7 +308,7 @@ def test_inputs_choose_frames_and_hold_out_the_rest(driveby):
 def test_a_driveby_capture_trains_with_its_held_out_views(driveby, tmp_path, small_torch):
     from flipviz.training.run import train
 
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         data=driveby,
         res=32,
         steps=12,
@@ -324,7 +326,9 @@ def test_a_driveby_capture_trains_with_its_held_out_views(driveby, tmp_path, sma
     assert metrics["plane"]["error_deg"] == pytest.approx(0.0, abs=1e-6)
     assert len(trainer.training.mirror_ids) == N_DRIVE
     with pytest.raises(Exception, match="Upper views"):
-        train(TrainConfig(data=driveby, res=32, steps=2, method="upper", out=tmp_path / "up", no_rrd=True))
+        train(
+            TrainConfig.from_settings(data=driveby, res=32, steps=2, method="upper", out=tmp_path / "up", no_rrd=True)
+        )
 
 
 def test_the_app_trains_a_capture_narrower_than_its_default_at_the_captures_width(driveby, tmp_path):
@@ -333,8 +337,10 @@ def test_the_app_trains_a_capture_narrower_than_its_default_at_the_captures_widt
     from flipviz.data import TooWide, load_scene
     from flipviz.viz.viser_app import AppConfig, check_run_input
 
-    cfg, scene = check_run_input(AppConfig(data=driveby, mirror_plane="scene", out=tmp_path / "run", no_rrd=True))
-    assert AppConfig().res == 200 and cfg.res == 32 and scene.resolution == (32, 32)
+    cfg, scene = check_run_input(
+        AppConfig.from_settings(data=driveby, mirror_plane="scene", out=tmp_path / "run", no_rrd=True)
+    )
+    assert AppConfig().data.res == 200 and cfg.data.res == 32 and scene.resolution == (32, 32)
     with pytest.raises(TooWide, match="wider than the images") as e:
         load_scene("", driveby, 64)
     assert e.value.width == 32

@@ -40,7 +40,7 @@ def runs(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("runs")
     out = {}
     for method in ("bl", "flip+u"):
-        cfg = TrainConfig(
+        cfg = TrainConfig.from_settings(
             scene="chair",
             method=method,
             res=RES,
@@ -53,7 +53,7 @@ def runs(tmp_path_factory) -> dict[str, Path]:
             log_every=10,
             out=root / method,
         )
-        rec = make_rerun_observer(cfg, cfg.out)
+        rec = make_rerun_observer(cfg, cfg.output.out)
         _, metrics = train(cfg, [rec])
         rec.close()
         assert metrics["status"] == "finished"

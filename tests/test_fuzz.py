@@ -120,7 +120,7 @@ def loads_or_one_line(load: Callable[[], object], what: str) -> bool:
 
 def _read_folder(root: Path) -> None:
     """What a run does with a data folder before it trains: load it and pick its views."""
-    run_split(TrainConfig(data=root, res=16), load_scene("", root, res=16))
+    run_split(TrainConfig.from_settings(data=root, res=16), load_scene("", root, res=16))
 
 
 @pytest.mark.filterwarnings("error::RuntimeWarning")  # an overflow or NaN let through is a failure too
@@ -156,7 +156,7 @@ def test_mutated_dataset_folders_load_or_fail_in_one_line(tmp_path, fmt):
 @pytest.fixture(scope="module")
 def run_folder(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("fuzz_run") / "run"
-    Trainer(TrainConfig(**TINY, steps=3, method="flip+u", out=out)).run()
+    Trainer(TrainConfig.from_settings(**TINY, steps=3, method="flip+u", out=out)).run()
     return out
 
 
@@ -198,7 +198,9 @@ def test_mutated_checkpoints_open_resume_or_fail_in_one_line(run_folder, tmp_pat
         else:
             torch.save(_mutate_state(state, rng), case / "checkpoint.pt")
         loads_or_one_line(lambda: open_run(case), f"checkpoint mutation {i}: open")  # report, video, Compare's B
-        cfg = TrainConfig(**TINY, steps=5, method="flip+u", out=tmp_path / f"resumed{i}", resume=case / "checkpoint.pt")
+        cfg = TrainConfig.from_settings(
+            **TINY, steps=5, method="flip+u", out=tmp_path / f"resumed{i}", resume=case / "checkpoint.pt"
+        )
         resumed.append(loads_or_one_line(lambda: Trainer(cfg), f"checkpoint mutation {i}: resume"))
         shutil.rmtree(case)
     assert 1 <= sum(resumed) <= len(resumed) - 1

@@ -284,10 +284,10 @@ def test_initial_equals_exact_for_vertical_plane_through_target():
 def test_the_pose_rule_picks_the_reflected_or_the_look_at_camera():
     """`pose` decides each mirrored camera: reflect = the input camera reflected whole (exact for a
     symmetric object), lookat = the paper's pose on the sphere looking at its centre. On a tilted plane
-    they differ by degrees, so a swapped rule shows; TrainConfig.mirror_pose reaches the run's mirrors."""
+    they differ by degrees, so a swapped rule shows; FlipConfig.mirror_pose reaches the run's mirrors."""
     from types import SimpleNamespace
 
-    from flipviz.training.config import TrainConfig
+    from flipviz.training.config import FlipConfig
     from flipviz.training.flip import mirrored_views
 
     inputs = views_of(half_ring(elev_deg=30.0, start=1))
@@ -296,7 +296,7 @@ def test_the_pose_rule_picks_the_reflected_or_the_look_at_camera():
     scene = SimpleNamespace(symmetry_plane=None, center=None, up=up)
     for pose in ("reflect", "lookat"):
         ms = make_mirror_set(inputs, tilted, pose=pose)
-        run = mirrored_views(TrainConfig(mirror_plane="auto", mirror_pose=pose), inputs, scene, tilted)
+        run = mirrored_views(FlipConfig(mirror_plane="auto", mirror_pose=pose), inputs, scene, tilted)
         for v, m, r in zip(inputs, ms.views, run.views):
             exact = exact_reflected_camera(v.camera, tilted).c2w
             paper = initial_mirrored_camera(v.camera, tilted, ms.sphere, up).c2w

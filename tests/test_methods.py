@@ -33,10 +33,10 @@ def chair(tmp_path_factory):
 
 
 def _ts(scene, **kw):
-    cfg = TrainConfig(res=RES, **kw)
+    cfg = TrainConfig.from_settings(res=RES, **kw)
     spec = method_spec(cfg)
-    split = make_split(scene, cfg.config)
-    mirrors = flip.mirrored_train_views(spec, flip.mirrored_views(cfg, split.inputs, scene), scene.bbox)
+    split = make_split(scene, cfg.data.config)
+    mirrors = flip.mirrored_train_views(spec, flip.mirrored_views(cfg.flip, split.inputs, scene), scene.bbox)
     return build_training_set(spec, split.inputs, mirrors, split.uppers)
 
 
@@ -67,7 +67,7 @@ def test_training_sets(chair, method, n_views, n_refined, unc_kinds):
     # targets are the views' images, row-major
     v0 = ts.views[-1]
     assert torch.equal(b.rgb[cam == len(ts.views) - 1], torch.from_numpy(v0.image.reshape(-1, 3)))
-    assert method_spec(TrainConfig(method=method)).uses_beta == bool(unc_kinds)
+    assert method_spec(TrainConfig.from_settings(method=method)).uses_beta == bool(unc_kinds)
 
 
 def test_ablation_switches(chair):
@@ -85,7 +85,7 @@ def test_ablation_switches(chair):
 
 def test_unknown_method():
     with pytest.raises(UserError, match="unknown method"):
-        method_spec(TrainConfig(method="nope"))  # type: ignore[arg-type]
+        method_spec(TrainConfig.from_settings(method="nope"))  # type: ignore[arg-type]
     assert set(METHODS) == {"bl", "bl+u", "flip", "flip+u", "upper"}
 
 
@@ -93,7 +93,7 @@ def test_unknown_method():
 def test_original_poses_fixed_unless_refine_all(chair, tmp_path, refine):
     from flipviz.training.trainer import Trainer
 
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         method="flip",
         refine=refine,
         res=RES,
@@ -108,7 +108,7 @@ def test_original_poses_fixed_unless_refine_all(chair, tmp_path, refine):
         mirror_plane="official",
     )
     tr = Trainer(cfg, scene=chair)
-    for _ in range(cfg.steps):
+    for _ in range(cfg.engine.steps):
         tr._train_step()
     with torch.no_grad():
         now = tr.current_poses()

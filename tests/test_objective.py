@@ -65,8 +65,8 @@ def test_certain_rays_contribute_exactly_their_mse():
 
 def test_warm_up_boundary_from_the_run_config():
     """Flip's objective: plain MSE for the first uncertainty_start of the steps, the NLL from then on."""
-    cfg = TrainConfig(steps=100, uncertainty_start=0.2, density_weight=W)
-    obj = flip.objective(cfg, B_MIN)
+    cfg = TrainConfig.from_settings(steps=100, uncertainty_start=0.2, density_weight=W)
+    obj = flip.objective(cfg.flip, cfg.engine.steps, B_MIN)
     assert obj.nll_start == 20
     out, target, unc = batch()
     mse = ((out["rgb"] - target) ** 2).mean().item()
@@ -76,8 +76,8 @@ def test_warm_up_boundary_from_the_run_config():
 
 def test_density_regulariser_value_and_weight_from_the_config():
     """d L / d sigma_mean = (2 beta_min^2 / 3) w / R on uncertain rays, 0 on certain ones."""
-    cfg = TrainConfig(steps=10, uncertainty_start=0.0, density_weight=0.05)
-    obj = flip.objective(cfg, B_MIN)
+    cfg = TrainConfig.from_settings(steps=10, uncertainty_start=0.0, density_weight=0.05)
+    obj = flip.objective(cfg.flip, cfg.engine.steps, B_MIN)
     out, target, unc = batch()
     obj(out, target, unc, step=0).backward()
     per_ray = (2 * B_MIN**2 / 3) * 0.05 / 3

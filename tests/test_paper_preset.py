@@ -24,50 +24,63 @@ LEGO = Path(os.environ.get("FLIPVIZ_LEGO", ROOT.parent / "shared/data/nerf_synth
 
 def test_the_paper_preset_sets_the_papers_setting_and_yields_to_given_values():
     cfg = parse_command(["train", "--preset", "paper", "--method", "flip+u"])
-    assert (cfg.field, cfg.n_samples, cfg.steps, cfg.batch_rays) == ("nerf", 128, 50_000, 1024)
-    assert int(cfg.uncertainty_start * cfg.steps) == 10_000  # the NLL from 10k of 50k iterations
+    assert (cfg.engine.field, cfg.engine.n_samples, cfg.engine.steps, cfg.engine.batch_rays) == (
+        "nerf",
+        128,
+        50_000,
+        1024,
+    )
+    assert int(cfg.flip.uncertainty_start * cfg.engine.steps) == 10_000  # the NLL from 10k of 50k iterations
     mc = model_config(cfg)
     assert isinstance(mc.field, NerfConfig) and (mc.field.depth, mc.field.width) == (8, 256)
     assert mc.field.lr * mc.field.lr_decay == pytest.approx(1e-4) and mc.field.barf_c2f == (0.1, 0.5)
     assert mc.n_samples == 128 and mc.w_entropy == 0.0 and mc.beta_min == 0.1
     mine = parse_command(["train", "--preset", "paper", "--steps", "7", "--n-samples", "32"])
-    assert (mine.steps, mine.n_samples, mine.field) == (7, 32, "nerf")  # what you pass wins
+    assert (mine.engine.steps, mine.engine.n_samples, mine.engine.field) == (7, 32, "nerf")  # what you pass wins
     fast = TrainConfig()
-    assert (fast.field, fast.n_samples, fast.steps) == ("grid", 64, 600) and model_config(fast).w_entropy > 0
+    assert (fast.engine.field, fast.engine.n_samples, fast.engine.steps) == ("grid", 64, 600) and model_config(
+        fast
+    ).w_entropy > 0
 
 
 def test_an_option_you_pass_wins_over_the_preset_even_at_the_fast_default():
     """The trap: the preset replaced every value *equal* to the fast default, so `--n-samples 64` (the
     fast default) silently trained the paper's 128, and `--mirror-pose reflect` under authors trained lookat."""
-    assert parse_command(["train", "--preset", "paper", "--n-samples", "64"]).n_samples == 64
-    assert parse_command(["train", "--preset", "authors", "--mirror-pose", "reflect"]).mirror_pose == "reflect"
+    assert parse_command(["train", "--preset", "paper", "--n-samples", "64"]).engine.n_samples == 64
+    assert parse_command(["train", "--preset", "authors", "--mirror-pose", "reflect"]).flip.mirror_pose == "reflect"
     bench = parse_command(["bench", "--preset", "paper", "--n-samples", "64", "--steps", "600"])
     run = RunSpec("chair", None, "flip+u", 1).train_config(bench)
-    assert (run.n_samples, run.steps, run.field, run.background, run.preset) == (64, 600, "nerf", "last", "paper")
+    assert (run.engine.n_samples, run.engine.steps, run.engine.field, run.engine.background, run.preset) == (
+        64,
+        600,
+        "nerf",
+        "last",
+        "paper",
+    )
     # a run saved with its own values reads back with them (run_config built the config afresh: 128 again)
     saved = parse_command(["train", "--preset", "paper", "--n-samples", "64", "--steps", "600"]).to_dict()
     again = run_config(saved)
-    assert (again.n_samples, again.steps, again.preset) == (64, 600, "paper")
+    assert (again.engine.n_samples, again.engine.steps, again.preset) == (64, 600, "paper")
 
 
 def test_the_app_in_the_paper_preset_trains_the_papers_50k_steps():
     """The app's own default (3000 steps) is not `flipviz train`'s (600): the preset compared against
     the latter, so `python app.py --preset paper` trained 3000 steps."""
     app = parse_command(["app", "--preset", "paper"])
-    assert (app.steps, app.field, app.n_samples) == (50_000, "nerf", 128)
+    assert (app.engine.steps, app.engine.field, app.engine.n_samples) == (50_000, "nerf", 128)
     assert (
-        parse_command(["app"]).steps == 3000
-        and parse_command(["app", "--preset", "paper", "--steps", "3000"]).steps == 3000
+        parse_command(["app"]).engine.steps == 3000
+        and parse_command(["app", "--preset", "paper", "--steps", "3000"]).engine.steps == 3000
     )
 
 
 def test_the_app_trains_at_200_px_and_the_command_line_at_100():
     """The app's 3000 steps gain from 200 px (docs/results/resolution); `flipviz train`'s 600 do not, and
     the bench's tables are at 100 px. Every preset keeps each one's width; --res still wins."""
-    assert parse_command(["app"]).res == 200 and parse_command(["train"]).res == 100
+    assert parse_command(["app"]).data.res == 200 and parse_command(["train"]).data.res == 100
     assert parse_command(["bench"]).res == 100
-    assert parse_command(["app", "--preset", "paper"]).res == 200
-    assert parse_command(["app", "--res", "100"]).res == 100
+    assert parse_command(["app", "--preset", "paper"]).data.res == 200
+    assert parse_command(["app", "--res", "100"]).data.res == 100
 
 
 @pytest.mark.skipif(not (LEGO / "transforms_test.json").is_file(), reason="needs the NeRF-synthetic lego")

@@ -104,7 +104,6 @@ def test_a_resumed_run_reads_its_estimate_back(tmp_path, turned_chair):
 def test_an_unconfident_plane_is_dropped_unless_the_user_keeps_it(tmp_path, turned_chair, confidence):
     """Flip+U with auto: below the threshold the run trains on the inputs only (no mirrored ray, no BA,
     beta^2 on no ray: B/L's training set), unless --unconfident-plane use; at it, the mirrors stay."""
-    from dataclasses import replace
 
     from flipviz.training.config import TrainConfig
     from flipviz.training.setup import build_run
@@ -112,9 +111,9 @@ def test_an_unconfident_plane_is_dropped_unless_the_user_keeps_it(tmp_path, turn
     est = PlaneEstimate(turned_chair.symmetry_plane, confidence, 0.9, 0.8, [0.0], [0.5], 3.0)
     saved = tmp_path / "plane.json"
     saved.write_text(__import__("json").dumps(est.to_dict()))
-    cfg = TrainConfig(scene="chair-turned", method="flip+u", res=100, steps=10, out=tmp_path / "run")
-    dropped, kept = (build_run(replace(cfg, unconfident_plane=u), turned_chair, saved) for u in ("drop", "use"))
-    bl = build_run(replace(cfg, method="bl"), turned_chair)
+    cfg = TrainConfig.from_settings(scene="chair-turned", method="flip+u", res=100, steps=10, out=tmp_path / "run")
+    dropped, kept = (build_run(cfg.with_settings(unconfident_plane=u), turned_chair, saved) for u in ("drop", "use"))
+    bl = build_run(cfg.with_settings(method="bl"), turned_chair)
     assert kept.training.mirror_ids and kept.flip.refiner is not None and kept.spec.uncertain_mirrors
     if confidence >= CONFIDENT:
         assert dropped.training.mirror_ids == kept.training.mirror_ids

@@ -118,7 +118,7 @@ def test_a_symmetric_object_keeps_its_exact_plane(tmp_path):
     0.000 at 64 px and 400 steps, 0.08° / 0.001 at the defaults (100 px, 600); at 48 px and 300 steps it drifts
     0.37°: the lighting is not symmetric, and a coarse model lets the photometric optimum wander."""
     tr = Trainer(
-        TrainConfig(
+        TrainConfig.from_settings(
             scene="chair",
             res=64,
             steps=400,
@@ -142,7 +142,7 @@ def test_refinement_recovers_a_plane_turned_5_degrees_and_moved_5_hundredths(tmp
     start = turned(TRUE, 5.0, 0.05)
     arg = ",".join(map(str, start.point)) + ";" + ",".join(map(str, start.normal))
     tr = Trainer(
-        TrainConfig(
+        TrainConfig.from_settings(
             scene="chair",
             mirror_plane=arg,
             out=tmp_path / "run",
@@ -153,7 +153,7 @@ def test_refinement_recovers_a_plane_turned_5_degrees_and_moved_5_hundredths(tmp
             steps=400,
         )
     )
-    assert tr.cfg.refine_plane  # on by default
+    assert tr.cfg.flip.refine_plane  # on by default
     tr.run()
     deg, off = plane_error(tr.flip.current_plane(), TRUE)
     assert deg < 1.0 and off < 0.015, (deg, off)  # from 5.00° / 0.050
@@ -175,13 +175,13 @@ def test_both_fields_move_the_plane_and_a_resumed_run_keeps_it(tmp_path, field):
         no_rrd=True,
         images_every=0,
     )
-    tr = Trainer(TrainConfig(**kw, out=tmp_path / "a"))
+    tr = Trainer(TrainConfig.from_settings(**kw, out=tmp_path / "a"))
     m = tr.run()
     assert m["plane"]["refined_change_deg"] > 0.0 or m["plane"]["refined_change_offset"] > 0.0
     moved = tr.flip.current_plane()
-    again = Trainer(TrainConfig(**kw, out=tmp_path / "b", resume=tmp_path / "a"))
+    again = Trainer(TrainConfig.from_settings(**kw, out=tmp_path / "b", resume=tmp_path / "a"))
     assert plane_error(again.flip.current_plane(), moved) == pytest.approx((0.0, 0.0), abs=1e-6)
-    fixed = Trainer(TrainConfig(**kw, out=tmp_path / "c", refine_plane=False))
+    fixed = Trainer(TrainConfig.from_settings(**kw, out=tmp_path / "c", refine_plane=False))
     assert "refined" not in fixed.run()["plane"] and fixed.flip.current_plane() is None
 
 
@@ -210,10 +210,10 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     import json
 
     kw = SHORT_AUTO
-    assert TrainConfig().estimate_after == 150
-    tr = Trainer(TrainConfig(**kw, out=tmp_path / "a", checkpoint_every=80))
+    assert TrainConfig().flip.estimate_after == 150
+    tr = Trainer(TrainConfig.from_settings(**kw, out=tmp_path / "a", checkpoint_every=80))
     K = 40
-    assert tr.cfg.mirror_plane == "auto"
+    assert tr.cfg.flip.mirror_plane == "auto"
     assert tr.step == K and tr.plane_estimate.meta["field_steps"] == K and "fit_steps" not in tr.plane_estimate.meta
     assert tr.training.mirror_ids and tr.flip.start == K and tr.spec.mirrors  # kept (--unconfident-plane use)
     assert tr.flip.objective.nll_start == K + int(0.2 * (160 - K)) and tr.flip.ba_start == K + int(0.5 * (160 - K))
@@ -227,18 +227,24 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     assert m["status"] == "finished" and m["plane"]["estimate_seconds"] == tr.plane_estimate.seconds
     saved = json.loads((tmp_path / "a" / "plane.json").read_text())
     assert saved["meta"]["field_steps"] == K
-    again = Trainer(TrainConfig(**kw, out=tmp_path / "b", resume=tmp_path / "a"))  # read back, not estimated again
+    again = Trainer(
+        TrainConfig.from_settings(**kw, out=tmp_path / "b", resume=tmp_path / "a")
+    )  # read back, not estimated again
     assert again.plane_estimate.to_dict() == saved, (again.plane_estimate.to_dict(), saved)
     assert again.flip.start == K and again.step == tr.step
     again.close()
-    young = Trainer(TrainConfig(**{**kw, "steps": 8, "estimate_after": 2}, out=tmp_path / "d"))  # no surface yet
+    young = Trainer(
+        TrainConfig.from_settings(**{**kw, "steps": 8, "estimate_after": 2}, out=tmp_path / "d")
+    )  # no surface yet
     assert young.step == 2 and young.flip.start == 2 and young.plane_estimate.meta["fit_steps"] > 0  # a separate fit
     young.close()
-    short = Trainer(TrainConfig(**{**kw, "steps": 159}, out=tmp_path / "e"))  # 40 steps > a quarter of 159
+    short = Trainer(
+        TrainConfig.from_settings(**{**kw, "steps": 159}, out=tmp_path / "e")
+    )  # 40 steps > a quarter of 159
     assert short.step == 0 and short.flip.start == 0 and short.plane_estimate.meta["fit_steps"] > 0
     assert short.training.mirror_ids and short.spec.mirrors  # the mirrors train from step 0
     short.close()
-    given = TrainConfig(**{**kw, "estimate_after": 0}, out=tmp_path / "c")
+    given = TrainConfig.from_settings(**{**kw, "estimate_after": 0}, out=tmp_path / "c")
     fitted = build_run(given, tr.scene, tmp_path / "a" / "plane.json")
     assert fitted.warm_up == 0 and fitted.flip.start == 0  # --estimate-after 0 (the estimate given): mirrors from 0
 
@@ -251,7 +257,7 @@ def test_the_fields_learning_rate_decays_again_from_the_step_the_mirrors_join(tm
     kw = dict(**SHORT_AUTO, log_every=1, checkpoint_every=0, plane_file=tmp_path / "plane.json")  # one estimate
     lrs: dict[str, dict[int, float]] = {}
     for join_lr in ("restart", "continue"):
-        tr = Trainer(TrainConfig(**kw, join_lr=join_lr, out=tmp_path / join_lr))
+        tr = Trainer(TrainConfig.from_settings(**kw, join_lr=join_lr, out=tmp_path / join_lr))
         assert tr.step == 40 and tr.spec.mirrors  # the mirrors joined: the lr of the steps from here
         seen = lrs[join_lr] = {}
         tr.add_observer(
@@ -264,7 +270,7 @@ def test_the_fields_learning_rate_decays_again_from_the_step_the_mirrors_join(tm
     assert lrs["restart"][41] == pytest.approx(lr0)  # step index 40: the first with the mirrors
     assert lrs["continue"][41] == pytest.approx(lr0 * 0.1 ** (40 / 160))
     assert lrs["restart"][160] == pytest.approx(lrs["continue"][160], rel=0.05)  # both end near lr0 / 10
-    flip = Trainer(TrainConfig(**kw, out=tmp_path / "drop")).flip
+    flip = Trainer(TrainConfig.from_settings(**kw, out=tmp_path / "drop")).flip
     assert flip.field_lr(10) == (10, 160) and flip.field_lr(50) == (10, 120)
     flip.dropped_at = 60  # the gate dropped the mirrors and the field restarted: its own steps again
     assert flip.field_lr(50) == (50, 160)

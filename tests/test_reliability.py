@@ -61,7 +61,7 @@ SAVE_CHILD = textwrap.dedent("""
     signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C as in a terminal (a background job ignores it)
     from flipviz.training.config import TrainConfig
     from flipviz.training.trainer import Trainer
-    tr = Trainer(TrainConfig(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,),
+    tr = Trainer(TrainConfig.from_settings(scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,),
                              mirror_plane="official", out=sys.argv[1]))
     real_save = torch.save
     def save_and_interrupt(obj, f, *a, **k):  # Ctrl-C lands in the middle of the write
@@ -251,12 +251,12 @@ def test_resume_into_the_same_folder_keeps_the_earlier_recording(tmp_path):
 
 # ------------------------------------------------------------------------- 4: one run per folder
 def test_a_second_run_on_the_same_folder_is_refused(tmp_path):
-    first = Trainer(TrainConfig(**TINY, out=tmp_path / "run"))
+    first = Trainer(TrainConfig.from_settings(**TINY, out=tmp_path / "run"))
     with pytest.raises(UserError, match="in use by flipviz pid"):
-        Trainer(TrainConfig(**TINY, out=tmp_path / "run"))
-    first.cfg.steps = 2
+        Trainer(TrainConfig.from_settings(**TINY, out=tmp_path / "run"))
+    first.cfg.engine.steps = 2
     first.run()  # the folder is free again once the run ends
-    Trainer(TrainConfig(**TINY, out=tmp_path / "run", resume=tmp_path / "run"))
+    Trainer(TrainConfig.from_settings(**TINY, out=tmp_path / "run", resume=tmp_path / "run"))
 
 
 def test_a_run_removes_the_temporary_files_of_killed_saves_in_its_folder(tmp_path):
@@ -268,13 +268,13 @@ def test_a_run_removes_the_temporary_files_of_killed_saves_in_its_folder(tmp_pat
     for p in leftovers:
         p.write_bytes(b"partial")
     (run / "notes.tmp.txt").write_text("mine")
-    Trainer(TrainConfig(**TINY, steps=1, out=run))
+    Trainer(TrainConfig.from_settings(**TINY, steps=1, out=run))
     assert not [p for p in leftovers if p.exists()] and (run / "notes.tmp.txt").read_text() == "mine"
 
 
 # ------------------------------------------------------------------------- 5: a full disk
 def test_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch):
-    tr = Trainer(TrainConfig(**TINY, steps=30, checkpoint_every=10, out=tmp_path / "run"))
+    tr = Trainer(TrainConfig.from_settings(**TINY, steps=30, checkpoint_every=10, out=tmp_path / "run"))
     real_save, calls = torch.save, []
 
     def save_until_full(obj, f, *a, **k):  # the disk fills up after the first checkpoint
@@ -544,7 +544,7 @@ def test_a_zero_transform_matrix_is_refused(tmp_path):
 
 
 def test_a_run_whose_model_is_not_finite_never_reports_success(tmp_path):
-    tr = Trainer(TrainConfig(**TINY, steps=3, out=tmp_path / "run"))
+    tr = Trainer(TrainConfig.from_settings(**TINY, steps=3, out=tmp_path / "run"))
 
     class Poison:
         def on_step(self, e):
@@ -554,7 +554,7 @@ def test_a_run_whose_model_is_not_finite_never_reports_success(tmp_path):
 
         on_setup = on_images = on_end = lambda self, e: None
 
-    tr.cfg.log_every = 1
+    tr.cfg.output.log_every = 1
     tr.add_observer(Poison())
     m = tr.run()
     assert m["status"] == "nan" and "psnr" not in m
@@ -674,7 +674,7 @@ def test_bad_resume_checkpoints_are_one_line(tmp_path, capsys):
     garbage = tmp_path / "garbage.pt"
     garbage.write_bytes(b"\x00not a checkpoint")
     other = tmp_path / "other"
-    Trainer(TrainConfig(**TINY, method="bl", steps=2, out=other)).run()
+    Trainer(TrainConfig.from_settings(**TINY, method="bl", steps=2, out=other)).run()
     truncated = tmp_path / "truncated.pt"
     truncated.write_bytes((other / "checkpoint.pt").read_bytes()[:1000])
     for path, says in (

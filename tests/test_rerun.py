@@ -78,7 +78,7 @@ def rows_by_step(batches: list, name: str) -> dict[int, object]:
 def run(tmp_path_factory):
     """A real Flip+U run on the built-in chair, recorded to a file and served to a local web viewer."""
     out = tmp_path_factory.mktemp("rerun") / "run"
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         scene="chair",
         res=32,
         steps=STEPS,
@@ -236,7 +236,7 @@ CHILD = textwrap.dedent("""
         def on_step(self, e):
             print(e.step, flush=True)
 
-    cfg = TrainConfig(scene="chair", res=32, steps=1000, log_every=1, images_every=0, batch_rays=256,
+    cfg = TrainConfig.from_settings(scene="chair", res=32, steps=1000, log_every=1, images_every=0, batch_rays=256,
                       out=Path(sys.argv[1]), checkpoint_every=0, mirror_plane="official")
     trainer = Trainer(cfg)
     trainer.add_observer(make_rerun_observer(cfg, trainer.run_dir, flush_every_s=0.0))
@@ -301,7 +301,7 @@ def test_the_field_is_recorded_as_gaussian_splats(run, tmp_path):
 
     centers = rows_by_step(run["rrd"]["/world/field"], "GaussianSplats3D:centers")
     assert sorted(centers) == [IMAGES_EVERY, STEPS]  # splats_every=1: each ImagesEvent; the end is logged once
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         scene="chair",
         res=32,
         steps=200,

@@ -31,7 +31,7 @@ def _cache(tmp_path_factory, monkeypatch):
 def run_folder(tmp_path_factory) -> Path:
     """A real finished Flip+U run (its checkpoint has poses and both optimisers)."""
     out = tmp_path_factory.mktemp("real") / "run"
-    Trainer(TrainConfig(**TINY, steps=3, method="flip+u", out=out)).run()
+    Trainer(TrainConfig.from_settings(**TINY, steps=3, method="flip+u", out=out)).run()
     return out
 
 

@@ -59,7 +59,9 @@ class Broken(Observer):
 
 
 def test_events_and_outputs(chair, tmp_path):
-    cfg = TrainConfig(method="flip+u", steps=30, log_every=10, images_every=20, out=tmp_path / "run", **TINY)
+    cfg = TrainConfig.from_settings(
+        method="flip+u", steps=30, log_every=10, images_every=20, out=tmp_path / "run", **TINY
+    )
     tr = Trainer(cfg, scene=chair)
     rec = Recorder()
     tr.add_observer(Broken())  # an observer's exception is logged, never fatal
@@ -109,7 +111,8 @@ def test_the_training_batch_psnr_averages_the_squared_error_over_rays_and_channe
     squared error averaged over the batch's rays and colour channels. Read back here from the batch the
     step rendered and the targets of the rays it drew."""
     tr = Trainer(
-        TrainConfig(method="flip+u", steps=1, log_every=1, images_every=0, out=tmp_path / "run", **TINY), scene=chair
+        TrainConfig.from_settings(method="flip+u", steps=1, log_every=1, images_every=0, out=tmp_path / "run", **TINY),
+        scene=chair,
     )
     batch: dict = {}
     render, sample = tr.model.render_rays, tr.flip.sample
@@ -134,12 +137,14 @@ def test_the_training_batch_psnr_averages_the_squared_error_over_rays_and_channe
 
 
 def test_checkpoint_roundtrip_and_resume(chair, tmp_path):
-    cfg = TrainConfig(method="flip+u", steps=20, images_every=0, out=tmp_path / "a", eval_on_stop=False, **TINY)
+    cfg = TrainConfig.from_settings(
+        method="flip+u", steps=20, images_every=0, out=tmp_path / "a", eval_on_stop=False, **TINY
+    )
     tr = Trainer(cfg, scene=chair)
     tr.run()
     cam = tr.split.tests[0].camera
     before = tr.render(cam)
-    cfg2 = TrainConfig(**{**cfg.__dict__, "out": tmp_path / "b", "resume": tmp_path / "a", "steps": 25})
+    cfg2 = cfg.with_settings(out=tmp_path / "b", resume=tmp_path / "a", steps=25)
     tr2 = Trainer(cfg2, scene=chair)
     assert tr2.step == 20
     after = tr2.render(cam)
@@ -151,7 +156,7 @@ def test_checkpoint_roundtrip_and_resume(chair, tmp_path):
 
 
 def test_nan_stops_cleanly_and_keeps_last_good_checkpoint(chair, tmp_path):
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         method="flip", steps=60, log_every=5, checkpoint_every=10, images_every=0, out=tmp_path / "run", **TINY
     )
     tr = Trainer(cfg, scene=chair)
@@ -172,14 +177,14 @@ def test_nan_stops_cleanly_and_keeps_last_good_checkpoint(chair, tmp_path):
     state = load_checkpoint(tmp_path / "run")
     assert state["step"] == 10  # the NaN state at step 20 was not written over it
     assert all(torch.isfinite(v).all() for v in state["model"].values() if v.is_floating_point())
-    cfg2 = TrainConfig(**{**cfg.__dict__, "resume": tmp_path / "run", "out": tmp_path / "r2"})
+    cfg2 = cfg.with_settings(resume=tmp_path / "run", out=tmp_path / "r2")
     tr2 = Trainer(cfg2, scene=chair)
     assert np.all(np.isfinite(tr2.render(tr2.split.tests[0].camera)["rgb"]))
 
 
 def test_ctrl_c_in_the_loop_and_in_the_final_evaluation(chair, tmp_path):
     """Ctrl-C stops at a step boundary; a second one during the evaluation skips it; checkpoint kept."""
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         method="flip+u", steps=40, log_every=5, checkpoint_every=0, images_every=0, out=tmp_path / "run", **TINY
     )
     tr = Trainer(cfg, scene=chair)
@@ -221,7 +226,7 @@ class PauseAt(Observer):
 
 
 def test_pause_resume_stop(chair, tmp_path):
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         method="bl", steps=100000, images_every=0, log_every=1, out=tmp_path / "run", eval_on_stop=False, **TINY
     )
     tr = Trainer(cfg, scene=chair)
@@ -282,7 +287,7 @@ def test_flip_u_beats_baseline_on_unobserved_views(chair, tmp_path):
     150 steps) 21.0 vs 18.3 dB."""
     psnr = {}
     for method in ("bl", "flip+u"):
-        cfg = TrainConfig(
+        cfg = TrainConfig.from_settings(
             method=method,
             mirror_plane="official",
             steps=150,
@@ -308,11 +313,11 @@ def test_ba_recovers_a_perturbed_mirrored_pose_at_default_settings(tmp_path):
 
     from flipviz.geometry.poses import pose_errors
 
-    cfg = TrainConfig(
+    cfg = TrainConfig.from_settings(
         mirror_plane="scene", refine_plane=False, out=tmp_path / "run", images_every=0, checkpoint_every=0
     )
     tr = Trainer(cfg)
-    assert (cfg.method, cfg.res, cfg.steps) == ("flip+u", 100, 600)
+    assert (cfg.method, cfg.data.res, cfg.engine.steps) == ("flip+u", 100, 600)
     k = tr.training.mirror_ids[3]
     true = tr.flip.refiner.init_c2w[k].double().numpy()
     bad = true.copy()

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Literal
 
 from flipviz.errors import UserError
-from flipviz.training.config import METHODS, TrainConfig
+from flipviz.training.config import METHODS, DataConfig, EngineConfig, FlipConfig, TrainConfig
 
 
 @dataclass
@@ -22,17 +22,17 @@ class BenchConfig:
     """Comma-separated methods (bl, bl+u, flip, flip+u, upper) or 'all'."""
     configs: str = "1-8"
     """Protocol configurations: '1-8', '1,3,5' or '2'."""
-    res: int = TrainConfig.res
+    res: int = DataConfig.res
     """Image width in pixels."""
-    steps: int = TrainConfig.steps
+    steps: int = EngineConfig.steps
     """Optimisation steps per run."""
-    batch_rays: int = TrainConfig.batch_rays
+    batch_rays: int = EngineConfig.batch_rays
     """Rays per optimisation step."""
-    field: Literal["grid", "nerf"] = TrainConfig.field
+    field: Literal["grid", "nerf"] = EngineConfig.field
     """Radiance field of every run (grid: fast dense voxel grid; nerf: the paper's MLP)."""
-    n_samples: int = TrainConfig.n_samples
+    n_samples: int = EngineConfig.n_samples
     """Samples per ray, in training and rendering."""
-    grid_res: tuple[int, ...] | None = TrainConfig.grid_res
+    grid_res: tuple[int, ...] | None = EngineConfig.grid_res
     """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
     out: Path = Path("bench")
     """Output folder: results.csv/json, table.md, figures, runs/<key>/ (one folder per run)."""
@@ -46,25 +46,25 @@ class BenchConfig:
     """Threads (and Ray CPUs) per run; 0: cores // workers (local) or 1 (ray)."""
     ablation: bool = False
     """Also run Table II: Flip+U with bundle adjustment and uncertainty each on/off."""
-    mirror_plane: str = TrainConfig.mirror_plane
+    mirror_plane: str = FlipConfig.mirror_plane
     """Mirror plane of the Flip runs: auto (estimated from each run's inputs) | official (x = 0, the
     authors' code) | opposite | scene | 'px,py,pz;nx,ny,nz'."""
-    mirror_pose: Literal["reflect", "lookat"] = TrainConfig.mirror_pose
+    mirror_pose: Literal["reflect", "lookat"] = FlipConfig.mirror_pose
     """Initial mirrored poses: reflect (each camera reflected through the plane) | lookat (the paper's)."""
-    refine_plane: bool = TrainConfig.refine_plane
+    refine_plane: bool = FlipConfig.refine_plane
     """Flip runs refine the mirror plane during training (TrainConfig.refine_plane)."""
-    unconfident_plane: Literal["drop", "use"] = TrainConfig.unconfident_plane
+    unconfident_plane: Literal["drop", "use"] = FlipConfig.unconfident_plane
     """Flip runs with an unconfident auto plane: use its mirrors (the agreement gate may drop them) or drop
     them at setup (the run then takes its B/L twin's result)."""
-    after_drop: Literal["restart", "continue"] = TrainConfig.after_drop
+    after_drop: Literal["restart", "continue"] = FlipConfig.after_drop
     """When the agreement gate drops a run's mirrors: restart the field on the inputs, or continue it."""
     preset: Literal["fast", "authors", "paper"] = TrainConfig.preset
     """Every run's preset: fast (flipviz's setting) | authors (the official code's loss and rendering
     choices on the grid; with --mirror-plane official, its x = 0) | paper (those on the paper's NeRF). An
     option you pass wins over the preset's; in code, build with training.config.preset_config(name, BenchConfig)."""
-    seed: int = TrainConfig.seed
+    seed: int = EngineConfig.seed
     """Seed of every run (each run is independent and seeded)."""
-    device: str = TrainConfig.device
+    device: str = EngineConfig.device
     """Device of every run: cpu | cuda | cuda:N."""
     retry_failed: bool = True
     """On restart, run failed runs again (finished runs are always skipped)."""

@@ -35,12 +35,12 @@ def holds_run(run_dir: Path) -> bool:
 def refuse_to_overwrite(run_dir: Path, cfg: TrainConfig) -> None:
     """One UserError line instead of a silent overwrite: a fresh run (no --resume) over an earlier
     run without --overwrite, or a --rrd in the folder of a run that another process trains."""
-    if cfg.resume is None and not cfg.overwrite and holds_run(run_dir):
+    if cfg.output.resume is None and not cfg.output.overwrite and holds_run(run_dir):
         raise UserError(
             f"{run_dir} holds an earlier run; continue it with --resume {run_dir}, "
             "replace it with --overwrite, or choose another --out"
         )
-    rrd = None if cfg.no_rrd or cfg.rrd is None else Path(cfg.rrd)
+    rrd = None if cfg.output.no_rrd or cfg.output.rrd is None else Path(cfg.output.rrd)
     if rrd is not None and rrd.parent.resolve() != run_dir.resolve() and (holder := FolderLock.holder(rrd.parent)):
         raise UserError(
             f"the recording {rrd} would go into the run folder {rrd.parent}, which {holder} is training; "

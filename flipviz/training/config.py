@@ -1,12 +1,20 @@
-"""Run configuration: one dataclass, used by the CLI (tyro), the app and the benchmark."""
+"""Run configuration, used by the CLI (tyro), the app and the benchmark.
+
+`TrainConfig` holds a run's method and preset and four settings by concern: `data` (what it trains on),
+`engine` (how it optimises and renders), `flip` (what Just Flip adds) and `output` (what it writes). The
+command line keeps one flat flag per setting (`--steps`, `--plane-lr`); in code, `cfg.engine.steps`.
+Saved runs (checkpoint.pt, metrics.json) keep the flat settings by those flag names:
+`TrainConfig.from_settings(**cfg.to_dict())` is `cfg` again."""
 
 from __future__ import annotations
 
 import types
 import typing
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Literal, TypeVar
+from typing import Annotated, Literal, TypeVar
+
+import tyro
 
 from flipviz.errors import UserError
 
@@ -103,30 +111,54 @@ PAPER_LR_DECAY = 0.2  # 5e-4 -> 1e-4 (BARF's options/nerf_blender.yaml: lr 5e-4,
 
 
 @dataclass
-class TrainConfig:
-    """One training run of one method on one protocol configuration."""
+class DataConfig:
+    """What a run trains and is scored on: the scene, its protocol configuration, the image size."""
 
     scene: str = "chair"
     """Built-in scene name (ignored when --data is given)."""
-    data: Path | None = None
+    path: Annotated[Path | None, tyro.conf.arg(name="data")] = None
     """A scene folder: a Blender orbit (transforms_test.json, e.g. NeRF-synthetic), a nerfstudio capture
     (transforms.json) or a COLMAP capture (images/ + sparse/0)."""
     inputs: str = ""
     """Protocol-free runs: the input frames, '' (a capture's train split, else all), 'all', '0,3,5-9' or
     'az:-60..120' (azimuth range, degrees); the other frames (or the capture's test split) are evaluated.
     Orbit scenes without it use the protocol's --config."""
-    method: Method = "flip+u"
-    """bl | bl+u | flip | flip+u | upper (the paper's five methods)."""
     config: int = 1
     """Protocol configuration n = 1..8 (which half ring is observed)."""
     res: int = 100
     """Image width in pixels (images are square), 8..1024; at most the data's own width."""
+
+
+@dataclass
+class EngineConfig:
+    """How a run optimises and renders, whatever its method: steps, rays, field, samples, device."""
+
     steps: int = 600
     """Optimisation steps, 1..10,000,000."""
     batch_rays: int = 1024
     """Rays per step, 1..1,000,000."""
     field: Literal["grid", "nerf"] = "grid"
     """grid: fast dense voxel grid (default); nerf: vanilla NeRF MLP, the paper's setting."""
+    n_samples: int = 64
+    """Samples per ray, in training and rendering, 2..1024. Measured on the chair at 100 px: 64 gives the
+    same held-out PSNR as 128 (27.1 dB) at half the time."""
+    grid_res: tuple[int, ...] | None = None
+    """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
+    background: Literal["white", "learned", "last"] = "white"
+    """What a ray's left-over transmittance sees (model/renderer.py): white (the datasets' background:
+    space no view saw stays white), learned (one RGB colour, trained), or last (the official code: the
+    field's colour at the ray's far end, so space no view saw shows whatever the field holds: fog)."""
+    seed: int = 0
+    """Seed of the run (torch, the ray sampler, the estimate's search)."""
+    device: str = "cpu"
+    """cpu | cuda | cuda:N."""
+
+
+@dataclass
+class FlipConfig:
+    """What Just Flip adds (training/flip.py): the mirror plane and the mirrored poses, their refinement, the
+    agreement gate, and the learned variance beta^2 (the uncertainty loss; B/L+U uses it too)."""
+
     mirror_plane: str = "auto"
     """auto (estimated from the inputs, with a confidence) | opposite | official (x = 0) | scene (the
     built-in's true plane) | 'px,py,pz;nx,ny,nz' (a point and a normal)."""
@@ -197,14 +229,16 @@ class TrainConfig:
     23.06 with no BA); the plane's error against the true plane, printed beside as a diagnostic, went
     0.46° -> 0.15° and -> 0.03°. The price: BA then runs at its already decayed lr, so a camera's own
     3° error is barely corrected (3.00° -> 2.74°; 0.46° with the plane fixed)."""
-    uncertainty: bool = True
-    """Learned beta^2 on mirrored rays (Flip+U; --no-uncertainty gives the Table II ablation)."""
     refine: Literal["mirrored", "all"] = "mirrored"
     """Which poses BA refines (Flip methods): the mirrored ones (the paper's text), or all (the code's)."""
-    background: Literal["white", "learned", "last"] = "white"
-    """What a ray's left-over transmittance sees (model/renderer.py): white (the datasets' background:
-    space no view saw stays white), learned (one RGB colour, trained), or last (the official code: the
-    field's colour at the ray's far end, so space no view saw shows whatever the field holds: fog)."""
+    uncertainty: bool = True
+    """Learned beta^2 on mirrored rays (Flip+U; --no-uncertainty gives the Table II ablation)."""
+    uncertainty_start: float = 0.2
+    """Fraction of the steps trained with plain MSE before the uncertainty loss starts (paper: 10k of 50k)."""
+    density_weight: float = 0.01
+    """w of the density regulariser (w / N_s) sum sigma in the uncertainty loss (paper Sec. IV-C)."""
+    beta2_mode: Literal["linear", "variance"] = "linear"
+    """How the per-sample variances composite into beta_hat^2 (see flipviz/model/renderer.py)."""
     density_on: Literal["uncertain", "all"] = "uncertain"
     """The NLL's density term (w / N_s) sum sigma: on the uncertain rays (the paper's Eqn. 7), or on every
     ray once the NLL starts, B/L's included (the official code)."""
@@ -214,43 +248,59 @@ class TrainConfig:
     beta_from: Literal["colour", "position"] = "colour"
     """The variance head: on the colour branch (position and view direction), or on the position
     features alone (the official code: from the density trunk)."""
-    seed: int = 0
-    device: str = "cpu"
-    """cpu | cuda | cuda:N."""
+
+
+@dataclass
+class OutputConfig:
+    """Where a run writes and what it reads back: its folder, checkpoints, events, Rerun recording."""
+
     out: Path | None = None
     """Run folder (default runs/<scene>-<method>-<config>-<time>)."""
+    resume: Path | None = None
+    """Resume from a checkpoint file (or a run folder holding checkpoint.pt)."""
+    overwrite: bool = False
+    """Train afresh into an --out that holds an earlier run, deleting its checkpoint, metrics,
+    renders and recordings first (without it, such a folder is refused unless --resume)."""
     log_every: int = 10
     """Steps between StepEvents (>= 1)."""
     images_every: int = 250
     """Steps between ImagesEvents (test renders and beta^2 maps); 0: none."""
+    checkpoint_every: int = 500
+    """Steps between checkpoints (atomic; a non-finite state is never written); 0: only at the end."""
+    eval_on_stop: bool = True
+    """Evaluate the test views also when a run is stopped early."""
     rrd: Path | None = None
     """Rerun recording path (default <run folder>/recording.rrd)."""
     no_rrd: bool = False
     """Do not write a Rerun recording."""
     rerun_serve: bool = False
     """Also stream to a local Rerun web viewer (bound to 127.0.0.1) and print its URL."""
-    resume: Path | None = None
-    """Resume from a checkpoint file (or a run folder holding checkpoint.pt)."""
-    overwrite: bool = False
-    """Train afresh into an --out that holds an earlier run, deleting its checkpoint, metrics,
-    renders and recordings first (without it, such a folder is refused unless --resume)."""
-    uncertainty_start: float = 0.2
-    """Fraction of the steps trained with plain MSE before the uncertainty loss starts (paper: 10k of 50k)."""
-    density_weight: float = 0.01
-    """w of the density regulariser (w / N_s) sum sigma in the uncertainty loss (paper Sec. IV-C)."""
-    checkpoint_every: int = 500
-    """Steps between checkpoints (atomic; a non-finite state is never written); 0: only at the end."""
-    eval_on_stop: bool = True
-    """Evaluate the test views also when a run is stopped early."""
-    beta2_mode: Literal["linear", "variance"] = "linear"
-    """How the per-sample variances composite into beta_hat^2 (see flipviz/model/renderer.py)."""
-    n_samples: int = 64
-    """Samples per ray, in training and rendering, 2..1024. Measured on the chair at 100 px: 64 gives the
-    same held-out PSNR as 128 (27.1 dB) at half the time."""
-    grid_res: tuple[int, ...] | None = None
-    """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
+
+
+FlatFlags = tyro.conf.OmitArgPrefixes  # a nested config whose flags carry no prefix
+GROUPS = {"data": DataConfig, "engine": EngineConfig, "flip": FlipConfig, "output": OutputConfig}
+
+
+def flag_name(cls: type, name: str) -> str:
+    """The flat setting (and flag) a group's field is known by: its name, or its tyro.conf.arg name."""
+    hint = typing.get_type_hints(cls, include_extras=True)[name]
+    return next((m.name for m in getattr(hint, "__metadata__", ()) if getattr(m, "name", None)), name)
+
+
+# flat setting name -> (group, field): "steps" -> ("engine", "steps"), "data" -> ("data", "path")
+SETTINGS: dict[str, tuple[str, str]] = {
+    flag_name(cls, f.name): (group, f.name) for group, cls in GROUPS.items() for f in fields(cls)
+}
+
+
+@dataclass
+class TrainConfig:
+    """One training run of one method on one protocol configuration."""
+
+    method: Method = "flip+u"
+    """bl | bl+u | flip | flip+u | upper (the paper's five methods)."""
     preset: Literal["fast", "authors", "paper"] = "fast"
-    """fast: flipviz's defaults (the grid field, the settings above); authors: the official code's choices
+    """fast: flipviz's defaults (the grid field, the settings below); authors: the official code's choices
     on the fast grid (--background last, --density-on all, --nll-channels mean, --beta-from position,
     --refine all, --mirror-pose lookat, --no-refine-plane; the code's plane is x = 0: add --mirror-plane
     official); paper: those and the paper's vanilla NeRF (--field nerf, 128 samples, 50k steps, the NLL
@@ -258,15 +308,44 @@ class TrainConfig:
     wins over the preset's, whatever its value (docs/AUTHORS_SETTING.md). In code, build a preset's
     config with `preset_config(name, ...)`: this field alone only names it."""
 
-    def validate(self) -> TrainConfig:
+    # each group's settings keep flat flags (--steps, not --engine.steps): FlatFlags
+    data: FlatFlags[DataConfig] = field(default_factory=DataConfig)
+    engine: FlatFlags[EngineConfig] = field(default_factory=EngineConfig)
+    flip: FlatFlags[FlipConfig] = field(default_factory=FlipConfig)
+    output: FlatFlags[OutputConfig] = field(default_factory=OutputConfig)
+
+    @classmethod
+    def from_settings(cls: type[T], **settings: object) -> T:
+        """`cls`'s defaults with flat settings over them, by their flag names (`steps=50`, `data=folder`)."""
+        return cls().with_settings(**settings)
+
+    def with_settings(self: T, **settings: object) -> T:
+        """A copy with flat settings changed, by their flag names (as `dataclasses.replace` by field names)."""
+        top = {f.name for f in fields(self)} - set(GROUPS)
+        unknown = set(settings) - top - set(SETTINGS)
+        if unknown:
+            raise TypeError(f"{type(self).__name__} has no setting {', '.join(sorted(unknown))}")
+        changes: dict[str, dict[str, object]] = {g: {} for g in GROUPS}
+        for k, v in settings.items():
+            if k in SETTINGS:
+                changes[SETTINGS[k][0]][SETTINGS[k][1]] = v
+        groups = {g: replace(getattr(self, g), **c) for g, c in changes.items() if c}
+        return replace(self, **{k: v for k, v in settings.items() if k in top}, **groups)
+
+    def settings(self) -> dict[str, object]:
+        """Every TrainConfig setting, flat, by its flag name (an app's or bench's own fields left out)."""
+        flat: dict[str, object] = {"method": self.method, "preset": self.preset}
+        return flat | {k: getattr(getattr(self, g), name) for k, (g, name) in SETTINGS.items()}
+
+    def validate(self: T) -> T:
         """Every setting of its type and within its stated limits, else one `UserError` line; train,
         app and bench call it, and so does every run read back from a checkpoint."""
-        hints = typing.get_type_hints(TrainConfig)
-        for f in fields(TrainConfig):  # the app's config adds its own fields, which tyro checked
-            if not fits(getattr(self, f.name), hints[f.name]):
-                raise UserError(
-                    f"--{f.name.replace('_', '-')} must be {type_words(hints[f.name])}, got {getattr(self, f.name)!r}"
-                )
+        hints = {"method": Method, "preset": typing.get_type_hints(TrainConfig)["preset"]}
+        hints |= {k: typing.get_type_hints(GROUPS[g])[name] for k, (g, name) in SETTINGS.items()}
+        settings = self.settings()
+        for name, value in settings.items():  # the app's config adds its own fields, which tyro checked
+            if not fits(value, hints[name]):
+                raise UserError(f"--{name.replace('_', '-')} must be {type_words(hints[name])}, got {value!r}")
         bounds = {  # name: (lowest, highest)
             "config": (1, 8),
             "res": (8, 1024),
@@ -285,29 +364,43 @@ class TrainConfig:
             "disagreement_limit": (1.0, float("inf")),
         }
         for name, (lo, hi) in bounds.items():
-            if not lo <= getattr(self, name) <= hi:  # of its type already (above)
-                raise UserError(f"--{name.replace('_', '-')} must be in {lo}..{hi}, got {getattr(self, name)!r}")
-        if self.ba_start is not None and not 0.0 <= self.ba_start <= 1.0:
-            raise UserError(f"--ba-start must be in 0.0..1.0, got {self.ba_start!r}")
-        if self.plane_file is not None and Path(self.plane_file).exists() and not Path(self.plane_file).is_file():
-            raise UserError(f"--plane-file {self.plane_file} is not a file (it is read, or written after the estimate)")
-        if self.grid_res is not None and (not self.grid_res or any(not 8 <= r <= 512 for r in self.grid_res)):
-            raise UserError(f"--grid-res needs resolutions in 8..512, got {self.grid_res!r}")
+            if not lo <= settings[name] <= hi:  # of its type already (above)
+                raise UserError(f"--{name.replace('_', '-')} must be in {lo}..{hi}, got {settings[name]!r}")
+        flip = self.flip
+        if flip.ba_start is not None and not 0.0 <= flip.ba_start <= 1.0:
+            raise UserError(f"--ba-start must be in 0.0..1.0, got {flip.ba_start!r}")
+        if flip.plane_file is not None and Path(flip.plane_file).exists() and not Path(flip.plane_file).is_file():
+            raise UserError(f"--plane-file {flip.plane_file} is not a file (it is read, or written after the estimate)")
+        grid_res = self.engine.grid_res
+        if grid_res is not None and (not grid_res or any(not 8 <= r <= 512 for r in grid_res)):
+            raise UserError(f"--grid-res needs resolutions in 8..512, got {grid_res!r}")
         from flipviz.geometry.mirror import PRESETS as PLANE_PRESETS
         from flipviz.geometry.mirror import parse_plane
 
-        if self.mirror_plane.strip().lower() not in ("auto", *PLANE_PRESETS):
-            parse_plane(self.mirror_plane)  # one line when it is neither a preset nor 'px,py,pz;nx,ny,nz'
-        check_device(self.device)
+        if flip.mirror_plane.strip().lower() not in ("auto", *PLANE_PRESETS):
+            parse_plane(flip.mirror_plane)  # one line when it is neither a preset nor 'px,py,pz;nx,ny,nz'
+        check_device(self.engine.device)
         return self
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        return {k: (str(v) if isinstance(v, Path) else v) for k, v in d.items()}
+        """The flat settings as saved (checkpoint.pt, metrics.json): paths as text."""
+        return {k: (str(v) if isinstance(v, Path) else v) for k, v in self.settings().items()}
 
 
+T = TypeVar("T", bound=TrainConfig)
 PRESETS: dict[str, dict[str, object]] = {"fast": {}, "authors": AUTHORS_PRESET, "paper": PAPER_PRESET}
 C = TypeVar("C")
+
+
+def settings_of(cfg: object) -> dict[str, object]:
+    """A config's flat settings: a TrainConfig's (and its subclass's own fields), or a flat dataclass's."""
+    own = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in GROUPS}  # type: ignore[arg-type]
+    return own | cfg.settings() if isinstance(cfg, TrainConfig) else own
+
+
+def with_settings(cfg: C, **settings: object) -> C:
+    """`cfg` with flat settings changed: a TrainConfig's by flag name, a flat dataclass's by field name."""
+    return cfg.with_settings(**settings) if isinstance(cfg, TrainConfig) else replace(cfg, **settings)  # type: ignore[type-var]
 
 
 def preset_config(name: str, cls: type[C] = TrainConfig, **settings: object) -> C:
@@ -315,15 +408,16 @@ def preset_config(name: str, cls: type[C] = TrainConfig, **settings: object) -> 
     the preset's settings over them (those `cls` has), then `settings` (yours) over both. The CLI
     parses with this as its defaults, so an option you pass wins whatever its value."""
     base = cls()
-    chosen = {k: v for k, v in PRESETS[name].items() if hasattr(base, k)}
-    return replace(base, **{**chosen, **settings, "preset": name})
+    chosen = {k: v for k, v in PRESETS[name].items() if k in settings_of(base)}
+    return with_settings(base, **{**chosen, **settings, "preset": name})
 
 
 def with_preset(cfg: C, preset: str) -> C:
     """`cfg` in another preset: each setting still at the old preset's value takes the new preset's; a
     setting you changed from it stays (as on the command line)."""
-    if preset == cfg.preset:
+    if preset == cfg.preset:  # type: ignore[attr-defined]
         return cfg
-    old, new = preset_config(cfg.preset, type(cfg)), preset_config(preset, type(cfg))
-    names = {k for p in PRESETS.values() for k in p if hasattr(cfg, k)}
-    return replace(cfg, **{k: getattr(new, k) for k in names if getattr(cfg, k) == getattr(old, k)}, preset=preset)
+    old, new = (settings_of(preset_config(p, type(cfg))) for p in (cfg.preset, preset))  # type: ignore[attr-defined]
+    mine = settings_of(cfg)
+    names = {k for p in PRESETS.values() for k in p if k in mine}
+    return with_settings(cfg, **{k: new[k] for k in names if mine[k] == old[k]}, preset=preset)

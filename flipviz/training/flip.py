@@ -51,14 +51,14 @@ from flipviz.model.objective import Objective
 from flipviz.model.optim import adam, decay_lr
 from flipviz.model.pose_refine import PoseRefiner
 from flipviz.model.renderer import ray_box
-from flipviz.training.config import TrainConfig
+from flipviz.training.config import FlipConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, TrainView
 
 log = logging.getLogger("flipviz.training")
 
 
 # ---------------------------------------------------------------------------------- IV-A: views
-def mirrored_views(cfg: TrainConfig, inputs: list[View], scene: SceneData, estimated: Plane | None = None) -> MirrorSet:
+def mirrored_views(cfg: FlipConfig, inputs: list[View], scene: SceneData, estimated: Plane | None = None) -> MirrorSet:
     """The flipped inputs with their initial poses (and the exact ones, when the scene's plane is
     known), for cfg.mirror_plane; for "auto", the `estimated` plane (plane_estimate.py)."""
     plane: str | Plane = cfg.mirror_plane
@@ -150,10 +150,10 @@ def pose_refiner(ts: TrainingSet, steps: int, device: torch.device | str) -> Pos
 
 
 # ---------------------------------------------------------------------------------- IV-C: loss
-def objective(cfg: TrainConfig, beta_min: float, start: int = 0) -> Objective:
+def objective(cfg: FlipConfig, steps: int, beta_min: float, start: int = 0) -> Objective:
     """MSE for the first `uncertainty_start` of the steps from `start` (the step the mirrors join), then
     the NLL on uncertain rays (the density term, with --density-on all, on every ray)."""
-    nll_start = start + int(cfg.uncertainty_start * (cfg.steps - start))
+    nll_start = start + int(cfg.uncertainty_start * (steps - start))
     return Objective(beta_min, cfg.density_weight, nll_start, cfg.nll_channels, cfg.density_on)
 
 
@@ -202,19 +202,20 @@ class Flip:
 
     def __init__(
         self,
-        cfg: TrainConfig,
+        cfg: FlipConfig,
+        steps: int,
         ts: TrainingSet,
         plane: Plane | None,
         beta_min: float,
         device: torch.device | str,
         start: int = 0,
     ) -> None:
-        self.ts, self.steps, self.start = ts, cfg.steps, start
+        self.ts, self.steps, self.start = ts, steps, start
         self.lr_from = start if cfg.join_lr == "restart" else 0  # the step the field's lr decay counts from
         self.after_drop = cfg.after_drop
-        span = max(1, cfg.steps - start)  # the steps the mirrors train
+        span = max(1, steps - start)  # the steps the mirrors train
         self.refiner = pose_refiner(ts, span, device)
-        self.objective = objective(cfg, beta_min, start)
+        self.objective = objective(cfg, steps, beta_min, start)
         self.mirror_ids = torch.as_tensor(ts.mirror_ids, dtype=torch.long, device=device)
         is_mirror = torch.zeros(len(ts.views), dtype=torch.bool, device=device)
         self.agreement = Agreement(is_mirror.index_fill(0, self.mirror_ids, True)) if ts.mirror_ids else None
@@ -348,4 +349,4 @@ class Flip:
 AGREEMENT_EMA = 0.05  # weight of a step's batch in the running means (about the last 20 steps)
 OBJECT_COLOUR = 0.05  # a target this far from white (any channel) is the object's
 PLANE_LR_DECAY = 0.01  # the plane's lr falls 100x over training, as BA's (1e-3 -> 1e-5)
-BA_START_WITH_PLANE = 0.5  # TrainConfig.ba_start's default when the plane is refined
+BA_START_WITH_PLANE = 0.5  # FlipConfig.ba_start's default when the plane is refined

@@ -8,8 +8,8 @@
 | flip+u | 8 inputs + 8 mirrors   | mirrored poses       | mirrored rays       |
 | upper  | 8 inputs + 8 upper     | none                 | -                   |
 
-`cfg.ba = False` and `cfg.uncertainty = False` switch BA / beta^2 off (paper Table II ablation);
-`cfg.refine = "all"` lets BA move the original input poses too. What the mirrors themselves are
+`cfg.flip.ba = False` and `cfg.flip.uncertainty = False` switch BA / beta^2 off (paper Table II ablation);
+`cfg.flip.refine = "all"` lets BA move the original input poses too. What the mirrors themselves are
 is `flipviz.training.flip`.
 """
 
@@ -53,15 +53,15 @@ def method_spec(cfg: TrainConfig) -> MethodSpec:
     if m not in METHODS:
         raise UserError(f"unknown method {m!r}; choose one of {', '.join(METHODS)}")
     flip = m in ("flip", "flip+u")
-    ba = flip and cfg.ba
+    ba = flip and cfg.flip.ba
     return MethodSpec(
         name=m,
         mirrors=flip,
         upper=m == "upper",
         ba=ba,
-        refine_inputs=ba and cfg.refine == "all",
-        uncertain_inputs=m == "bl+u" and cfg.uncertainty,
-        uncertain_mirrors=m == "flip+u" and cfg.uncertainty,
+        refine_inputs=ba and cfg.flip.refine == "all",
+        uncertain_inputs=m == "bl+u" and cfg.flip.uncertainty,
+        uncertain_mirrors=m == "flip+u" and cfg.flip.uncertainty,
     )
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
-from dataclasses import replace
 from pathlib import Path
 
 from flipviz.data.dataset import SceneData
@@ -20,15 +19,15 @@ def make_trainer(cfg: TrainConfig, scene: SceneData | None = None, resume_unfini
     """A Trainer for `cfg`. With `resume_unfinished` (the bench, whose run folders are its own), a
     run folder that already holds a checkpoint (a run that was killed) resumes from it, and any other
     (an unreadable checkpoint, a failed run's leftovers) starts over in place."""
-    if not resume_unfinished or cfg.resume is not None:
+    if not resume_unfinished or cfg.output.resume is not None:
         return Trainer(cfg, scene)
-    ckpt = Path(cfg.out) / CHECKPOINT_NAME if cfg.out is not None else None
+    ckpt = Path(cfg.output.out) / CHECKPOINT_NAME if cfg.output.out is not None else None
     if ckpt is not None and ckpt.is_file():
         try:
-            return Trainer(replace(cfg, resume=ckpt), scene)
+            return Trainer(cfg.with_settings(resume=ckpt), scene)
         except Exception as e:
             log.warning("cannot resume from %s (%s: %s); starting over", ckpt, type(e).__name__, e)
-    return Trainer(replace(cfg, overwrite=True), scene)
+    return Trainer(cfg.with_settings(overwrite=True), scene)
 
 
 def train(

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 import threading
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -71,7 +71,7 @@ def run_config(settings: dict) -> TrainConfig:
     settings that are not a TrainConfig's (a crafted or damaged file) are one UserError line."""
     if not isinstance(settings, dict):
         raise UserError(f"the run's saved settings are a {type(settings).__name__}, not a table")
-    names = {f.name for f in fields(TrainConfig)}
+    names = set(TrainConfig().settings())
     kw = {k: v for k, v in settings.items() if k in names}
     kw.setdefault("unconfident_plane", "use")  # saved before the option existed: any plane was trained with
     try:
@@ -80,7 +80,7 @@ def run_config(settings: dict) -> TrainConfig:
                 kw[k] = Path(kw[k])
         if kw.get("grid_res") is not None:
             kw["grid_res"] = tuple(kw["grid_res"])
-        return TrainConfig(**kw)
+        return TrainConfig.from_settings(**kw)
     except (TypeError, ValueError) as e:
         raise UserError(f"the run's saved settings are damaged ({str(e).splitlines()[0][:120]})") from None
 
@@ -95,13 +95,13 @@ def open_run(run: Path | str, device: str | None = None, scene: SceneData | None
         raise UserError(f"{run} is not a run folder with a checkpoint ({keep})") from None
     state = load_checkpoint(path)
     cfg = run_config(state.get("config"))
-    cfg = replace(cfg, resume=None, out=path.parent, device=device or cfg.device, no_rrd=True).validate()
-    if cfg.data is not None and not os.path.exists(cfg.data):  # False for a name the system refuses
-        raise UserError(f"{path.parent} was trained on {cfg.data}, which is not found from here")
+    cfg = cfg.with_settings(resume=None, out=path.parent, device=device or cfg.engine.device, no_rrd=True).validate()
+    if cfg.data.path is not None and not os.path.exists(cfg.data.path):  # False for a name the system refuses
+        raise UserError(f"{path.parent} was trained on {cfg.data.path}, which is not found from here")
     scene = scene if scene is not None else load_scene_for(cfg)
     split = run_split(cfg, scene)
     estimate = read_estimate(path.parent / PLANE_FILE)
-    mirrors = flip.mirrored_views(cfg, split.inputs, scene, estimate.plane if estimate else None)
+    mirrors = flip.mirrored_views(cfg.flip, split.inputs, scene, estimate.plane if estimate else None)
     spec = method_spec(cfg)
     try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
         poses = _mirror_poses(state, spec.mirrors, len(mirrors.views))

@@ -56,24 +56,24 @@ class RunSetup:
 def model_config(cfg: TrainConfig) -> ModelConfig:
     """The model of a run: the field's defaults, with the run's samples and grid resolutions."""
     field: GridConfig | NerfConfig
-    if cfg.field == "nerf":
-        ba = cfg.ba and cfg.method in ("flip", "flip+u")
+    if cfg.engine.field == "nerf":
+        ba = cfg.flip.ba and cfg.method in ("flip", "flip+u")
         c2f = (0.1, 0.5) if ba else None  # BARF's coarse-to-fine PE with BA
         field = NerfConfig(barf_c2f=c2f, lr_decay=PAPER_LR_DECAY) if cfg.preset == "paper" else NerfConfig(barf_c2f=c2f)
-    elif cfg.grid_res is not None:
-        n_up = len(cfg.grid_res) - 1  # upsample at evenly spread fractions of the first half
+    elif cfg.engine.grid_res is not None:
+        n_up = len(cfg.engine.grid_res) - 1  # upsample at evenly spread fractions of the first half
         field = GridConfig(
-            grid_res=tuple(cfg.grid_res), upsample_at=tuple(0.5 * (i + 1) / (n_up + 1) for i in range(n_up))
+            grid_res=tuple(cfg.engine.grid_res), upsample_at=tuple(0.5 * (i + 1) / (n_up + 1) for i in range(n_up))
         )
     else:
         field = GridConfig()
     entropy = {"w_entropy": 0.0} if cfg.preset == "paper" else {}  # vanilla NeRF has no entropy term
     return ModelConfig(
         field=field,
-        n_samples=cfg.n_samples,
-        beta2_mode=cfg.beta2_mode,
-        background=cfg.background,
-        beta_from=cfg.beta_from,
+        n_samples=cfg.engine.n_samples,
+        beta2_mode=cfg.flip.beta2_mode,
+        background=cfg.engine.background,
+        beta_from=cfg.flip.beta_from,
         **entropy,
     )
 
@@ -81,33 +81,38 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
 def fresh_model(cfg: TrainConfig, scene: SceneData, with_beta: bool) -> RadianceModel:
     """A newly initialised model of the run (the agreement gate's restart builds one mid-run)."""
     return RadianceModel(
-        model_config(cfg), scene.bbox, scene.near, scene.far, with_beta=with_beta, device=torch.device(cfg.device)
+        model_config(cfg),
+        scene.bbox,
+        scene.near,
+        scene.far,
+        with_beta=with_beta,
+        device=torch.device(cfg.engine.device),
     )
 
 
 def load_scene_for(cfg: TrainConfig) -> SceneData:
-    """The scene of a run: a Blender folder (cfg.data) or a built-in scene, at cfg.res pixels."""
+    """The scene of a run: a Blender folder (cfg.data.path) or a built-in scene, at cfg.data.res pixels."""
     from flipviz.data import load_scene
 
-    return load_scene(cfg.scene, cfg.data, cfg.res)
+    return load_scene(cfg.data.scene, cfg.data.path, cfg.data.res)
 
 
 def run_split(cfg: TrainConfig, scene: SceneData) -> Split:
     """The protocol's configuration for orbit data without --inputs; else the chosen inputs."""
-    if scene.protocol and not cfg.inputs:
-        return make_split(scene, cfg.config)
+    if scene.protocol and not cfg.data.inputs:
+        return make_split(scene, cfg.data.config)
     if cfg.method == "upper":
         raise UserError("method upper needs the protocol's Upper views: an orbit scene without --inputs")
-    return select_split(scene, cfg.inputs)
+    return select_split(scene, cfg.data.inputs)
 
 
 def mirrors_join_at(cfg: TrainConfig) -> int:
     """The step the mirrored views join: with --mirror-plane auto on the grid field, after --estimate-after
     steps on the inputs alone when they fit in the first quarter of the run; else 0 (the mirrors train
     from the start; auto's plane then comes from a separate fit, as a younger field's would be doubted)."""
-    if cfg.mirror_plane != "auto" or cfg.field == "nerf" or cfg.estimate_after > cfg.steps // 4:
+    if cfg.flip.mirror_plane != "auto" or cfg.engine.field == "nerf" or cfg.flip.estimate_after > cfg.engine.steps // 4:
         return 0
-    return cfg.estimate_after
+    return cfg.flip.estimate_after
 
 
 def build_run(
@@ -120,20 +125,22 @@ def build_run(
     """Everything a run trains with. `saved_estimate`: the plane.json of a run being resumed; `estimate`:
     auto's plane, estimated from the run's own `model` after its input-only steps (that field trains on)."""
     check_image_size(*scene.resolution, f"the images of {scene.source or scene.name}")
-    device = torch.device(cfg.device)
+    device = torch.device(cfg.engine.device)
     spec = method_spec(cfg)
     split = run_split(cfg, scene)
     warm_up, with_beta = 0, spec.uses_beta
-    if cfg.mirror_plane == "auto" and spec.mirrors and estimate is None:
+    if cfg.flip.mirror_plane == "auto" and spec.mirrors and estimate is None:
         if mirrors_join_at(cfg) > 0:  # read back (a resumed run's), else estimated from this run's field later
             estimate = read_estimate(saved_estimate)
             warm_up = mirrors_join_at(cfg) if estimate is None else 0
         else:
-            estimate = estimate_or_read(split.inputs, scene, cfg.device, cfg.seed, saved_estimate, cfg.plane_file)
+            estimate = estimate_or_read(
+                split.inputs, scene, cfg.engine.device, cfg.engine.seed, saved_estimate, cfg.flip.plane_file
+            )
     if warm_up:  # the inputs alone until the estimate; the field has what the run needs after it
         spec = spec.without_mirrors()
     elif estimate is not None:
-        if not estimate.confident and cfg.unconfident_plane == "drop":
+        if not estimate.confident and cfg.flip.unconfident_plane == "drop":
             log.warning(
                 "training without the mirrored views: the plane is not confident (--unconfident-plane use keeps them)"
             )
@@ -144,15 +151,14 @@ def build_run(
                 "the plane is not confident: its mirrored views train while they agree with the inputs "
                 "(--disagreement-limit; --unconfident-plane drop trains without them)"
             )
-    mirrors = flip.mirrored_views(cfg, split.inputs, scene, estimate.plane if estimate else None)
+    mirrors = flip.mirrored_views(cfg.flip, split.inputs, scene, estimate.plane if estimate else None)
     training = build_training_set(
         spec, split.inputs, flip.mirrored_train_views(spec, mirrors, scene.bbox), split.uppers, device=device
     )
     model = model if model is not None else fresh_model(cfg, scene, with_beta)
     plane = mirrors.plane if spec.mirrors else None
-    hooks = flip.Flip(
-        cfg, training, plane, model.cfg.beta_min, device, mirrors_join_at(cfg) if plane is not None else 0
-    )
+    join = mirrors_join_at(cfg) if plane is not None else 0
+    hooks = flip.Flip(cfg.flip, cfg.engine.steps, training, plane, model.cfg.beta_min, device, join)
     return RunSetup(scene, spec, split, mirrors, estimate, warm_up, training, model, hooks)
 
 
@@ -177,7 +183,7 @@ def setup_event(
         scene=scene.name,
         method=cfg.method,
         config=split.config,
-        total_steps=cfg.steps,
+        total_steps=cfg.engine.steps,
         sphere_center=mirrors.sphere.center.copy(),
         sphere_radius=float(mirrors.sphere.radius),
         plane=mirrors.plane if trained else None,

@@ -58,19 +58,19 @@ class NonFiniteLoss(RuntimeError):
 
 
 def scene_label(cfg: TrainConfig) -> str:
-    return Path(cfg.data).name if cfg.data is not None else cfg.scene
+    return Path(cfg.data.path).name if cfg.data.path is not None else cfg.data.scene
 
 
 def default_run_dir(cfg: TrainConfig) -> Path:
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path("runs") / f"{scene_label(cfg)}-{cfg.method}-{cfg.config}-{stamp}"
+    return Path("runs") / f"{scene_label(cfg)}-{cfg.method}-{cfg.data.config}-{stamp}"
 
 
 class Trainer:
     def __init__(self, cfg: TrainConfig, scene: SceneData | None = None) -> None:
         """A run to train (a finished one opens to look at as a `saved_run.Run`, with no trainer)."""
         self.cfg = cfg.validate()
-        self.run_dir = Path(cfg.out) if cfg.out is not None else default_run_dir(cfg)
+        self.run_dir = Path(cfg.output.out) if cfg.output.out is not None else default_run_dir(cfg)
         self._lock_file = FolderLock(self.run_dir)  # the run folder, ours until run() ends
         try:
             self._set_up(scene)
@@ -85,10 +85,10 @@ class Trainer:
         cfg = self.cfg
         self._take_over_folder()
         keep_freed_memory()  # a step's large temporaries reuse the last step's memory (runtime.py)
-        torch.manual_seed(cfg.seed)
-        self._gen = torch.Generator().manual_seed(cfg.seed)
+        torch.manual_seed(cfg.engine.seed)
+        self._gen = torch.Generator().manual_seed(cfg.engine.seed)
         self.scene = scene if scene is not None else load_scene_for(cfg)
-        resumed = Path(cfg.resume) if cfg.resume is not None else None  # a checkpoint or its run folder
+        resumed = Path(cfg.output.resume) if cfg.output.resume is not None else None  # a checkpoint or its run folder
         saved = (resumed if resumed.is_dir() else resumed.parent) / PLANE_FILE if resumed is not None else None
         rs = build_run(cfg, self.scene, saved)
         self._adopt(rs)
@@ -105,8 +105,8 @@ class Trainer:
         self._running = threading.Event()
         self._running.set()  # set = not paused
         self._stop = threading.Event()
-        if cfg.resume is not None:
-            self._load(cfg.resume)
+        if cfg.output.resume is not None:
+            self._load(cfg.output.resume)
 
     def _adopt(self, rs: RunSetup) -> None:
         self.spec, self.split, self.mirrors, self.training = rs.spec, rs.split, rs.mirrors, rs.training
@@ -122,19 +122,19 @@ class Trainer:
         while self.step < steps:
             self._train_step()
         self.train_seconds += time.perf_counter() - t0
-        shared = Path(cfg.plane_file) if cfg.plane_file is not None else None
+        shared = Path(cfg.flip.plane_file) if cfg.flip.plane_file is not None else None
         est = read_estimate(shared)
         if est is None:
             try:
-                est = estimate_from_field(self.model, self.split.inputs, self.scene, cfg.seed, steps)
+                est = estimate_from_field(self.model, self.split.inputs, self.scene, cfg.engine.seed, steps)
             except ValueError as e:  # too few steps to show a surface yet
                 log.warning("%s after %d steps; estimating it with a separate fit instead", e, steps)
-                est = estimate_plane(self.split.inputs, self.scene, cfg.device, cfg.seed)
+                est = estimate_plane(self.split.inputs, self.scene, cfg.engine.device, cfg.engine.seed)
             est = shared_estimate(est, shared)
         self._adopt(build_run(cfg, self.scene, estimate=est, model=self.model))
         if not self.spec.mirrors:  # dropped (--unconfident-plane drop): a fresh field and sampler, seeded as B/L's
             self._new_field(0)
-            self._gen = torch.Generator().manual_seed(cfg.seed)
+            self._gen = torch.Generator().manual_seed(cfg.engine.seed)
             self.step, self.train_seconds = 0, 0.0
 
     def _take_over_folder(self) -> None:
@@ -143,7 +143,7 @@ class Trainer:
         if remove_leftover_temps(self.run_dir):
             log.info("removed the temporary files of writes killed earlier in %s", self.run_dir)
         artifacts.refuse_to_overwrite(self.run_dir, self.cfg)
-        if self.cfg.resume is None and self.cfg.overwrite:
+        if self.cfg.output.resume is None and self.cfg.output.overwrite:
             artifacts.remove_run(self.run_dir)
 
     # ------------------------------------------------------------------ public control API
@@ -162,8 +162,8 @@ class Trainer:
 
     @property
     def total_steps(self) -> int:
-        """The steps the run takes: cfg.steps, plus the steps before a restart of the field."""
-        return self.field_start + self.cfg.steps
+        """The steps the run takes: cfg.engine.steps, plus the steps before a restart of the field."""
+        return self.field_start + self.cfg.engine.steps
 
     def stop(self) -> None:
         self._stop.set()
@@ -187,7 +187,7 @@ class Trainer:
         the run's own when it used auto). Does not touch the training; about 10-20 s on 2 cores."""
         if self.plane_estimate is not None:
             return self.plane_estimate
-        return estimate_plane(self.split.inputs, self.scene, self.cfg.device, self.cfg.seed)
+        return estimate_plane(self.split.inputs, self.scene, self.cfg.engine.device, self.cfg.engine.seed)
 
     # ------------------------------------------------------------------ poses
     def current_poses(self) -> torch.Tensor:
@@ -212,11 +212,11 @@ class Trainer:
         cfg, bank = self.cfg, self.training.bank
         field_step = self.step - self.field_start  # the field's schedules count from its start
         with signals_deferred():  # an interrupt never leaves half-upsampled grids or a stale optimiser
-            if self.model.update_schedule(field_step, cfg.steps):  # grids upsampled: new parameters
+            if self.model.update_schedule(field_step, cfg.engine.steps):  # grids upsampled: new parameters
                 self.opt_field = self.model.make_optimizer()
         self.model.adjust_lr(self.opt_field, *self.flip.field_lr(field_step))
         # (R,) random pixels: the inputs' alone before the mirrors join, and after a drop
-        idx = self.flip.sample(cfg.batch_rays, self._gen, self.step)
+        idx = self.flip.sample(cfg.engine.batch_rays, self._gen, self.step)
         view = bank.view[idx]
         o, d = rays_from_c2w(self.current_poses()[view], bank.dirs_cam[idx])  # (R, 3) each
         out = self.model.render_rays(o, d, training=True)
@@ -230,7 +230,7 @@ class Trainer:
         self.opt_field.step()
         dropped = self.flip.step(self.step)
         self.step += 1
-        if dropped and cfg.after_drop == "restart":
+        if dropped and cfg.flip.after_drop == "restart":
             self._restart_field()
         return {
             "loss": float(total.detach()),
@@ -241,27 +241,27 @@ class Trainer:
 
     def _restart_field(self) -> None:
         """After the agreement gate dropped the mirrors: a fresh field, seeded as B/L's, trains on the
-        inputs alone for the full cfg.steps from here (the run then ends as B/L would)."""
+        inputs alone for the full cfg.engine.steps from here (the run then ends as B/L would)."""
         log.warning(
             "step %d: restarting the field on the inputs alone for %d steps (--after-drop restart)",
             self.step,
-            self.cfg.steps,
+            self.cfg.engine.steps,
         )
         with signals_deferred():
             self._new_field(self.step)
-            self._gen = torch.Generator().manual_seed(self.cfg.seed)
+            self._gen = torch.Generator().manual_seed(self.cfg.engine.seed)
 
     def _new_field(self, start: int) -> None:
         """A newly initialised field without a variance head (no mirrored ray is trained any more),
         starting at step `start`, seeded as a run's first field is."""
-        torch.manual_seed(self.cfg.seed)
+        torch.manual_seed(self.cfg.engine.seed)
         self.model = fresh_model(self.cfg, self.scene, with_beta=False)
         self.opt_field = self.model.make_optimizer()
         self.field_start = start
 
     # ------------------------------------------------------------------ the loop
     def run(self) -> dict:
-        """Train to total_steps (cfg.steps, longer after a restart; or until stopped / NaN); returns the
+        """Train to total_steps (cfg.engine.steps, longer after a restart; or until stopped / NaN); returns the
         final metrics."""
         cfg = self.cfg
         self._emit("on_setup", self.setup_event)
@@ -277,7 +277,7 @@ class Trainer:
                 with self._lock:
                     scalars = self._train_step()
                 self.train_seconds += time.perf_counter() - t0
-                if self.step % cfg.log_every == 0 or self.step == self.total_steps:
+                if self.step % cfg.output.log_every == 0 or self.step == self.total_steps:
                     self._emit(
                         "on_step",
                         StepEvent(
@@ -289,9 +289,13 @@ class Trainer:
                             **self._plane_now(),
                         ),
                     )
-                if cfg.images_every > 0 and self.step % cfg.images_every == 0 and self.step < self.total_steps:
+                if (
+                    cfg.output.images_every > 0
+                    and self.step % cfg.output.images_every == 0
+                    and self.step < self.total_steps
+                ):
                     self._emit("on_images", self._images_event())
-                if cfg.checkpoint_every > 0 and self.step % cfg.checkpoint_every == 0:
+                if cfg.output.checkpoint_every > 0 and self.step % cfg.output.checkpoint_every == 0:
                     self.save_checkpoint()
         except NonFiniteLoss as e:
             status, message = "nan", f"{e}; stopped, last good checkpoint kept in {self.run_dir}"
@@ -311,7 +315,7 @@ class Trainer:
         metrics: dict = {}
         try:
             if status in ("finished", "stopped") and self.save_checkpoint() is not None:
-                if status == "finished" or cfg.eval_on_stop:
+                if status == "finished" or cfg.output.eval_on_stop:
                     renders = self.render_tests()  # rendered once, for the scores and the last images
                     metrics = self.evaluate(renders)
                     self._emit("on_images", self._images_event(renders))
@@ -366,7 +370,7 @@ class Trainer:
             method=self.cfg.method,
             config=self.split.config,
             scene=self.scene.name,
-            mirror_plane=self.cfg.mirror_plane,
+            mirror_plane=self.cfg.flip.mirror_plane,
             settings=self.cfg.to_dict(),
         )
         # the mirrors this configuration gives (built for every method, so B/L rows carry it too)
@@ -427,9 +431,13 @@ class Trainer:
                 raise UserError(
                     f"cannot resume: {path} is not a flipviz checkpoint (its {key} is a {type(theirs[key]).__name__})"
                 )
-            if key in theirs and theirs[key] != getattr(self.cfg, key) and not (key == "scene" and self.cfg.data):
+            if (
+                key in theirs
+                and theirs[key] != self.cfg.settings()[key]
+                and not (key == "scene" and self.cfg.data.path)
+            ):
                 raise UserError(
-                    f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {getattr(self.cfg, key)!r}"
+                    f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {self.cfg.settings()[key]!r}"
                 )
         try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
             start = ckpt.counter(state, "field_start", 0)
@@ -459,7 +467,7 @@ class Trainer:
         """The mirror plane used, its estimate (auto), and its error against the scene's true plane."""
         rep: dict = {
             "used": self.mirrors.plane.to_dict(),
-            "preset": self.cfg.mirror_plane,
+            "preset": self.cfg.flip.mirror_plane,
             "trained": self.spec.mirrors,
         }
         # trained: False when the mirrors were dropped at setup (the estimate's confidence) or by the agreement gate

@@ -195,14 +195,16 @@ def _summary(run: Run, metrics: dict) -> str:
         ("method", METHOD_LABELS[cfg.method]),
         (
             "views",
-            f"configuration {run.split.config}" if run.split.config else f"inputs {cfg.inputs or '(capture split)'}",
+            f"configuration {run.split.config}"
+            if run.split.config
+            else f"inputs {cfg.data.inputs or '(capture split)'}",
         ),
         ("steps", run.step),
-        ("resolution", f"{cfg.res} px"),
-        ("field", cfg.field),
-        ("mirror plane", cfg.mirror_plane),
-        ("mirror pose", cfg.mirror_pose),
-        ("training time", f"{run.train_seconds:.0f} s on {cfg.device}"),
+        ("resolution", f"{cfg.data.res} px"),
+        ("field", cfg.engine.field),
+        ("mirror plane", cfg.flip.mirror_plane),
+        ("mirror pose", cfg.flip.mirror_pose),
+        ("training time", f"{run.train_seconds:.0f} s on {cfg.engine.device}"),
     ]
     if "psnr" in metrics:
         rows += [("PSNR, unobserved views", f"{metrics['psnr']:.2f} dB"), ("SSIM", f"{metrics['ssim']:.3f}")]

@@ -62,7 +62,7 @@ class RerunOptions:
     grpc_port: int = 9876
     jpeg_quality: int = 85  # for the RGB images
     max_map_size: int = 128  # scalar maps (beta^2, depth, opacity, error) are strided down to this
-    step_stride: int = 1  # log every n-th StepEvent (on top of cfg.log_every)
+    step_stride: int = 1  # log every n-th StepEvent (on top of cfg.output.log_every)
     flush_every_s: float = 2.0
     min_free_mb: float = 32.0  # the recording stops (and stays readable) when its disk has less free
     optimize: bool = True  # compact the finished file's chunks (optimize_recording)
@@ -499,14 +499,14 @@ def optimize_recording(path: Path, timeout_s: float = 300.0) -> bool:
 
 
 def recording_path(cfg: TrainConfig, run_dir: Path) -> Path | None:
-    """Where a run records: cfg.rrd, else <run_dir>/recording.rrd. An earlier recording is never
+    """Where a run records: cfg.output.rrd, else <run_dir>/recording.rrd. An earlier recording is never
     replaced: the run writes the next free recording.N.rrd beside it (a resumed run's recordings
     open together: `rerun <run folder>/*.rrd`; --overwrite deletes the earlier run's first).
     A path that cannot be written is a one-line UserError (the Trainer refused one in the folder of
     another run in training: artifacts.refuse_to_overwrite)."""
-    if cfg.no_rrd:
+    if cfg.output.no_rrd:
         return None
-    path = Path(cfg.rrd) if cfg.rrd is not None else Path(run_dir) / "recording.rrd"
+    path = Path(cfg.output.rrd) if cfg.output.rrd is not None else Path(run_dir) / "recording.rrd"
     if path.is_dir():
         raise UserError(f"cannot write the recording {path}: it is a folder (name a .rrd file)")
     path = next_free(path)
@@ -522,6 +522,8 @@ def recording_path(cfg: TrainConfig, run_dir: Path) -> Path | None:
 def make_rerun_observer(
     cfg: TrainConfig, run_dir: Path, bake: Callable[[], dict] | None = None, **overrides
 ) -> RerunObserver:
-    """The observer the CLI and the app attach (see `recording_path`; cfg.rerun_serve); `bake`: the
+    """The observer the CLI and the app attach (see `recording_path`; cfg.output.rerun_serve); `bake`: the
     trainer's `point_cloud`, for the field's splats."""
-    return RerunObserver(RerunOptions(path=recording_path(cfg, run_dir), serve=cfg.rerun_serve, **overrides), bake)
+    return RerunObserver(
+        RerunOptions(path=recording_path(cfg, run_dir), serve=cfg.output.rerun_serve, **overrides), bake
+    )

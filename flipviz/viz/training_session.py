@@ -15,7 +15,6 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Sequence
-from dataclasses import fields, replace
 from pathlib import Path
 
 from flipviz.data import SceneData
@@ -30,11 +29,11 @@ log = logging.getLogger("flipviz.app")
 
 def train_config(cfg: TrainConfig) -> TrainConfig:
     """The plain TrainConfig part of an AppConfig (what the trainer and its run folder see)."""
-    return TrainConfig(**{f.name: getattr(cfg, f.name) for f in fields(TrainConfig)})
+    return TrainConfig.from_settings(**cfg.settings())
 
 
 def _scene_key(cfg: TrainConfig) -> tuple:
-    return (cfg.scene, str(cfg.data) if cfg.data is not None else None, cfg.res)
+    return (cfg.data.scene, str(cfg.data.path) if cfg.data.path is not None else None, cfg.data.res)
 
 
 class TrainingSession(Observer):
@@ -56,7 +55,7 @@ class TrainingSession(Observer):
         self.run_dirs: list[Path] = []  # every run folder this session wrote, in order
         self._observers = list(observers)
         self._checkpoints_bytes = checkpoints_mb * 1e6
-        self._base_out = cfg.out  # restarts write beside it: <out>-restart1, <out>-restart2, ...
+        self._base_out = cfg.output.out  # restarts write beside it: <out>-restart1, <out>-restart2, ...
         self._preloaded = (_scene_key(cfg), scene) if scene is not None else None  # for the first run
         self._lock = threading.Lock()  # start / restart / stop, and a built trainer taking over
         self._gen = 0  # run generation: counted up whenever a run is stopped
@@ -83,7 +82,7 @@ class TrainingSession(Observer):
                 log.info("deleted %s (over --restart-checkpoints-mb)", ckpt)
             on_stopped()
             out = None if self._base_out is None else next_free(f"{self._base_out}-restart{self.restarts}")
-            self._start(replace(cfg, out=out, resume=None, rrd=None))
+            self._start(cfg.with_settings(out=out, resume=None, rrd=None))
             return True
 
     def stop(self) -> None:
@@ -143,7 +142,7 @@ class TrainingSession(Observer):
         trainer.add_observer(self)
         for obs in self._observers:
             trainer.add_observer(obs)
-        if not cfg.no_rrd:
+        if not cfg.output.no_rrd:
             try:
                 from flipviz.viz.rerun_observer import make_rerun_observer
 

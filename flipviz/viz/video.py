@@ -98,7 +98,7 @@ class GroundTruth:
     @classmethod
     def of_run(cls, trainer) -> GroundTruth:
         """A run's ground truth, its dataset reloaded at another width when a camera asks for one."""
-        return cls(trainer.scene, lambda width: load_scene(trainer.cfg.scene, trainer.cfg.data, width))
+        return cls(trainer.scene, lambda width: load_scene(trainer.cfg.data.scene, trainer.cfg.data.path, width))
 
     def __call__(self, cam: Camera) -> np.ndarray | None:
         if self.builtin is not None:

@@ -23,7 +23,7 @@ import threading
 import time
 import warnings
 import webbrowser
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +36,7 @@ from flipviz.errors import UserError
 from flipviz.files import inside_roots, signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
-from flipviz.training.config import TrainConfig, with_preset
+from flipviz.training.config import DataConfig, EngineConfig, FlatFlags, TrainConfig, with_preset
 from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
@@ -81,15 +81,15 @@ warnings.filterwarnings("ignore", message=r"Queued a \w+ on a closed connection"
 class AppConfig(TrainConfig):
     """A training run plus the browser app that shows it (`python app.py --scene chair`)."""
 
-    steps: int = 3000
-    """Optimisation steps. More than `flipviz train`'s 600, so that a newcomer watches training
-    happen (about 2-3 minutes on 2 cores); the Train tab restarts with any other count."""
-    res: int = 200
-    """Image width in pixels, 8..1024; narrower data (a 100 px capture) trains at its own width. Twice
-    `flipviz train`'s 100 px: over the app's 3000 steps, training at 200 px scored +2.5 dB (Upper) and
-    +0.8 dB (B/L) at 200 px on held-out views of the chair that the protocol never uses, in the same
-    training time (the grid stays 64^3 -> 128^3; docs/results/resolution). At 600 steps it bought
-    nothing consistent (-0.2 to +0.4 dB)."""
+    # --res 200, twice `flipviz train`'s 100 px (narrower data, a 100 px capture, trains at its own
+    # width): over the app's 3000 steps, training at 200 px scored +2.5 dB (Upper) and +0.8 dB (B/L) at
+    # 200 px on held-out views of the chair that the protocol never uses, in the same training time (the
+    # grid stays 64^3 -> 128^3; docs/results/resolution). At 600 steps it bought nothing consistent
+    # (-0.2 to +0.4 dB).
+    data: FlatFlags[DataConfig] = field(default_factory=lambda: DataConfig(res=200))
+    # --steps 3000, more than `flipviz train`'s 600, so that a newcomer watches training happen (about
+    # 2-3 minutes on 2 cores); the Train tab restarts with any other count.
+    engine: FlatFlags[EngineConfig] = field(default_factory=lambda: EngineConfig(steps=3000))
     port: int = 8080
     """Port of the web app (the next free one is used when it is busy)."""
     host: str = "127.0.0.1"
@@ -133,23 +133,25 @@ def check_run_input(cfg: AppConfig) -> tuple[AppConfig, SceneData]:
     px over a 100 px capture) trains at its own width: the settings come back with that --res."""
     cfg.validate()
     check_host(cfg.host, cfg.port)
-    if cfg.resume is not None:
+    if cfg.output.resume is not None:
         from flipviz.training.checkpoint import load_checkpoint
 
-        load_checkpoint(cfg.resume)
-    if cfg.out is not None:
+        load_checkpoint(cfg.output.resume)
+    if cfg.output.out is not None:
         from flipviz.training.artifacts import refuse_to_overwrite
 
-        refuse_to_overwrite(Path(cfg.out), cfg)
+        refuse_to_overwrite(Path(cfg.output.out), cfg)
     try:
-        scene = load_scene(cfg.scene, cfg.data, cfg.res)
+        scene = load_scene(cfg.data.scene, cfg.data.path, cfg.data.res)
     except TooWide as e:
         log.warning("%s: the app trains at the images' own %d px", e, e.width)
-        cfg = replace(cfg, res=e.width)
-        scene = load_scene(cfg.scene, cfg.data, cfg.res)
+        cfg = cfg.with_settings(res=e.width)
+        scene = load_scene(cfg.data.scene, cfg.data.path, cfg.data.res)
     inputs = run_split(cfg, scene).inputs
-    if cfg.mirror_plane != "auto":  # auto is estimated when the run starts
-        make_mirror_set(inputs, cfg.mirror_plane, scene.symmetry_plane, scene.center, scene.up, pose=cfg.mirror_pose)
+    if cfg.flip.mirror_plane != "auto":  # auto is estimated when the run starts
+        make_mirror_set(
+            inputs, cfg.flip.mirror_plane, scene.symmetry_plane, scene.center, scene.up, pose=cfg.flip.mirror_pose
+        )
     return cfg, scene
 
 
@@ -324,10 +326,10 @@ class App(Observer):
     def browse_roots(self) -> list[Path]:
         """The folders a browser may name (AppConfig.browse_root): all were given on the command line."""
         roots = {Path("runs"), *(d.parent for d in self.run_dirs), *self._first.browse_root}
-        if self._first.out is not None:
-            roots.add(Path(self._first.out).parent)
-        if self._first.data is not None:
-            roots.add(Path(self._first.data))
+        if self._first.output.out is not None:
+            roots.add(Path(self._first.output.out).parent)
+        if self._first.data.path is not None:
+            roots.add(Path(self._first.data.path))
         return sorted(roots)
 
     @property
@@ -364,16 +366,16 @@ class App(Observer):
         except UserError as e:  # a folder the command line did not name: refused, the run goes on
             self.train.say(f"**Not restarted:** {e}")
             return
-        scene = choice.scene if choice.scene is not None else self.cfg.scene
+        scene = choice.scene if choice.scene is not None else self.cfg.data.scene
         cfg = with_preset(self.cfg, choice.preset)
         self.restart(
-            replace(cfg, scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps)
+            cfg.with_settings(scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps)
         )
 
     def restart_with_plane(self, plane: Plane) -> None:
         """Retrain with `plane` as the mirror plane (with Flip+U unless a Flip method is running)."""
         method = self.cfg.method if self.cfg.method in ("flip", "flip+u") else "flip+u"
-        self.restart(replace(self.cfg, mirror_plane=plane_to_arg(plane), method=method))
+        self.restart(self.cfg.with_settings(mirror_plane=plane_to_arg(plane), method=method))
 
     def restart(self, cfg: AppConfig) -> None:
         """Stop the current run and train `cfg` from scratch in a new run folder (TrainingSession.restart),
@@ -499,7 +501,12 @@ class App(Observer):
         self.views.unsnap_all()
         cfg = self.cfg
         self.train.show_run(
-            cfg.scene, str(cfg.data) if cfg.data else None, cfg.method, cfg.config, cfg.steps, cfg.preset
+            cfg.data.scene,
+            str(cfg.data.path) if cfg.data.path else None,
+            cfg.method,
+            cfg.data.config,
+            cfg.engine.steps,
+            cfg.preset,
         )
         self.views.request_all()
         self.preview.request(delay=1.0)

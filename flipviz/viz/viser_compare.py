@@ -19,7 +19,6 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -252,7 +251,7 @@ class ComparePanel:
         def build() -> None:
             try:
                 trainer = Trainer(
-                    replace(cfg, method=method, out=out, resume=None, no_rrd=True, rrd=None, rerun_serve=False)
+                    cfg.with_settings(method=method, out=out, resume=None, no_rrd=True, rrd=None, rerun_serve=False)
                 )
             except Exception as e:
                 self._say(f"**Cannot train run B:** {str(e).splitlines()[0]}")
