@@ -592,8 +592,8 @@ def test_the_curves_plot_the_unobserved_views_the_mirrors_and_the_plane(app):
         assert time.monotonic() < deadline, "no test evaluation or plane curve was plotted"
         time.sleep(0.2)
     x, train, test = app.train.plot.data
-    with app._ev_lock:
-        evals = dict(app._curves.test)
+    with app.events.curves() as curves:
+        evals = dict(curves.test)
     assert len(x) >= 2 and np.all(np.diff(x) > 0) and np.isfinite(train).sum() >= 2
     assert {float(s): float(p) for s, p in zip(x, test) if np.isfinite(p)} == pytest.approx(evals)
     data = app.mirror.curves.poses.data  # the chair's true plane is known: the error against the exact reflections
@@ -1182,3 +1182,41 @@ def test_the_live_preview_is_drawn_as_gaussian_splats_one_per_cell(app):
         asyncio.run(asyncio.wait_for(go(), timeout=240))  # a first field with opaque cells may take a while
     finally:
         app.trainer.resume()
+
+
+def test_run_events_hand_the_ui_thread_each_new_thing_once_and_a_new_run_forgets_the_last():
+    """viz/run_events.py: what the trainer's thread copies, the UI thread takes."""
+    from flipviz.training.events import ImagesEvent, SetupEvent, StepEvent
+    from flipviz.viz.run_events import RunEvents
+
+    def setup(name: str) -> SetupEvent:
+        return SetupEvent(name, "chair", "flip+u", 1, 100, np.zeros(3), 4.0, None, None, [], np.zeros((2, 3)))
+
+    events, first, plane = RunEvents(), setup("a"), Plane(np.zeros(3), np.array([1.0, 0.0, 0.0]))
+    events.on_setup(first)
+    events.on_step(StepEvent(5, 100, 1.0, {"psnr": 20.0}, mirror_c2w=np.eye(4)[None], plane=plane))
+    events.on_images(ImagesEvent(5, [], [], {"test_psnr": 18.0}))
+    news = events.take()
+    assert news.setup is first and news.step.step == 5 and news.images.step == 5 and news.plane is plane
+    assert (events.step, events.test_psnr, events.mirror_c2w.shape) == (5, 18.0, (1, 4, 4))
+    again = events.take()  # the setup, renders and plane once; the latest step stays
+    assert (again.setup, again.images, again.plane, again.step.step) == (None, None, None, 5)
+    events.on_setup(first)  # the same run announced again: nothing new to build
+    assert events.take().setup is None
+    with events.curves() as curves:
+        assert curves.test == {5: 18.0} and curves.steps == [5]
+    second = setup("b")  # a new run: nothing of the last one stays, and its first step comes with its setup
+    events.on_setup(second)
+    assert events.mirror_c2w is None and events.test_psnr is None and events.take().step is None
+    events.on_setup(second)
+    events.on_step(StepEvent(1, 100, 0.1, {"psnr": 9.0}))
+    news = events.take()
+    assert news.setup is None and news.step.step == 1  # taken above already
+    third = setup("c")
+    events.on_setup(third)
+    events.on_step(StepEvent(2, 100, 0.1, {"psnr": 9.0}))
+    news = events.take()
+    assert news.setup is third and news.step.step == 2
+    events.clear()
+    with events.curves() as curves:
+        assert curves is None and events.step == 0

@@ -1,8 +1,8 @@
 """The app's training run: one `Trainer` at a time, trained in a background thread.
 
-    session = TrainingSession(cfg, observers=[app])   # the app observes every run
-    session.start()                                   # builds the trainer in its thread, trains
-    session.restart(other_cfg, on_stopped=clear_gui)  # the run stops (checkpoint saved), a new one starts
+    session = TrainingSession(cfg, observers=[events])  # the app's RunEvents observe every run
+    session.start()                                    # builds the trainer in its thread, trains
+    session.restart(other_cfg, on_stopped=clear_gui)   # the run stops (checkpoint saved), a new one starts
     session.pause(); session.resume(); session.stop()
 
 Start, restart and stop hold one lock, so that they never interleave. A trainer that is still being

@@ -2,9 +2,9 @@
 
 `run_app(cfg)` serves viser on cfg.host:cfg.port and trains with the real `Trainer` in a
 background thread (viz/training_session.py: start, restart, stop; recording Rerun unless
---no-rrd). The app is an `Observer` of the trainer: events are copied in the trainer's thread and
-drawn by a UI thread a few times a second; it acts on training only through the trainer's public
-methods (render, point_cloud, pause, resume, stop).
+--no-rrd). The app observes the trainer through `RunEvents` (viz/run_events.py): events are copied
+in the trainer's thread and drawn by a UI thread a few times a second; it acts on training only
+through the trainer's public methods (render, point_cloud, pause, resume, stop).
 All renders go through one duty-cycled `RenderWorker`, so browsers never stall training for long.
 
 The app is the `RunView` (viz/run_view.py) its panels read. Panels: viser_train (the Train tab),
@@ -37,11 +37,11 @@ from flipviz.files import inside_roots, signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.training.config import DataConfig, EngineConfig, FlatFlags, TrainConfig, with_preset
-from flipviz.training.events import EndEvent, ImagesEvent, Observer, SetupEvent, StepEvent
+from flipviz.training.events import SetupEvent, StepEvent
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
 from flipviz.viz.gui_thread import on_gui_thread, thread_safe_pushes
-from flipviz.viz.run_curves import RunCurves
+from flipviz.viz.run_events import RunEvents
 from flipviz.viz.training_session import TrainingSession, train_config
 from flipviz.viz.viser_common import plane_to_arg
 from flipviz.viz.viser_compare import ComparePanel, finished_runs
@@ -155,12 +155,13 @@ def check_run_input(cfg: AppConfig) -> tuple[AppConfig, SceneData]:
     return cfg, scene
 
 
-class App(Observer):
+class App:
     """Viser server + background trainer + GUI. Start with `start()`, end with `stop()`."""
 
     def __init__(self, cfg: AppConfig, scene: SceneData | None = None) -> None:
         self._first = cfg  # the command line's settings (browse roots); the session's cfg follows restarts
-        self.session = TrainingSession(cfg, [self], scene, checkpoints_mb=cfg.restart_checkpoints_mb)
+        self.events = RunEvents()  # what the trainer's thread hands the UI thread
+        self.session = TrainingSession(cfg, [self.events], scene, checkpoints_mb=cfg.restart_checkpoints_mb)
         thread_safe_pushes()  # the render worker, callbacks and the UI tick all write to the browsers
         self.server = viser.ViserServer(host=cfg.host, port=cfg.port, label="flipviz", verbose=False)
         self._set_initial_camera(np.zeros(3), 4.0)
@@ -169,16 +170,7 @@ class App(Observer):
         self.url = f"http://{shown}:{self.port}"
         self.worker = RenderWorker(cfg.render_duty)
         self.scene = RunScene(self.server)
-        self.setup: SetupEvent | None = None
-        self.mirror_c2w: np.ndarray | None = None
-        self.step = 0
-        self._ev_lock = threading.Lock()  # the events the trainer's thread hands to the UI thread
-        self._pending_setup: SetupEvent | None = None
-        self._last_step: StepEvent | None = None
-        self._last_images: ImagesEvent | None = None
-        self._plane: Plane | None = None  # the refined mirror plane of the last StepEvent (--refine-plane)
-        self._test_psnr: float | None = None
-        self._curves: RunCurves | None = None  # what the Train and Mirror tabs plot over the steps
+        self.setup: SetupEvent | None = None  # the run the browsers show (built by the UI thread)
         self._closing = threading.Event()
         self._ui_thread = threading.Thread(target=self._ui_loop, name="flipviz-ui", daemon=True)
         self._build_gui()
@@ -336,6 +328,14 @@ class App(Observer):
     def training(self) -> bool:
         return self.status == "running"
 
+    @property
+    def step(self) -> int:
+        return self.events.step
+
+    @property
+    def mirror_c2w(self) -> np.ndarray | None:
+        return self.events.mirror_c2w
+
     def point_cloud(self) -> dict | None:
         trainer = self.trainer
         return trainer.point_cloud() if trainer is not None else None
@@ -394,9 +394,8 @@ class App(Observer):
         self.novel.reset()
         self.probe.clear()
         self.compare.clear()
-        with self._ev_lock:
-            self.setup, self._last_step, self._test_psnr, self.mirror_c2w, self._plane = None, None, None, None, None
-            self._curves, self.step = None, 0
+        self.events.clear()
+        self.setup = None
 
     def stop(self) -> None:
         """Stop training (joined: checkpoint and recording flushed), the renders and the server."""
@@ -420,36 +419,6 @@ class App(Observer):
         trainer = self.trainer
         return trainer.estimate_plane() if trainer is not None else None
 
-    # ---- Observer (called in the trainer's thread: copy and return) -------------------------
-    def on_setup(self, event: SetupEvent) -> None:
-        with self._ev_lock:
-            if event is self.setup or event is self._pending_setup:
-                return
-            self._pending_setup = event
-            self._curves = RunCurves.for_run(event)
-
-    def on_step(self, event: StepEvent) -> None:
-        with self._ev_lock:
-            self._last_step = event
-            self.step = event.step
-            if event.mirror_c2w is not None:
-                self.mirror_c2w = event.mirror_c2w
-            if event.plane is not None:
-                self._plane = event.plane
-            if self._curves is not None:
-                self._curves.add_step(event)
-
-    def on_images(self, event: ImagesEvent) -> None:
-        with self._ev_lock:
-            self._last_images = event
-            if "test_psnr" in event.scalars:
-                self._test_psnr = float(event.scalars["test_psnr"])
-                if self._curves is not None:
-                    self._curves.add_test(event.step, self._test_psnr)
-
-    def on_end(self, event: EndEvent) -> None:
-        self.step = event.step  # the status and its message: TrainingSession.on_end
-
     # ---- UI thread --------------------------------------------------------------------------
     def _ui_loop(self, period: float = 0.25) -> None:
         """Four times a second, the browsers catch up with training: on viser's loop thread (gui_thread)."""
@@ -461,32 +430,27 @@ class App(Observer):
                 log.exception("UI update failed")
 
     def _ui_tick(self) -> None:
-        with self._ev_lock:
-            setup, self._pending_setup = self._pending_setup, None
-            if setup is not None:
-                self.setup, self.mirror_c2w, self._last_step, self._test_psnr = setup, None, None, None
-            images, self._last_images = self._last_images, None
-            step_ev = self._last_step
-            plane, self._plane = self._plane, None
-        if setup is not None:
-            self._new_run(setup)
+        news = self.events.take()
+        if news.setup is not None:
+            self.setup = news.setup
+            self._new_run(news.setup)
         now = time.monotonic()
-        if step_ev is not None and now - self._last_mirrors > 0.5 and step_ev.mirror_c2w is not None:
-            self.scene.update_mirrors(step_ev.mirror_c2w)
+        if news.step is not None and now - self._last_mirrors > 0.5 and news.step.mirror_c2w is not None:
+            self.scene.update_mirrors(news.step.mirror_c2w)
             self._last_mirrors = now
         if now - self._last_plot > 1.0:
-            with self._ev_lock:  # the curves the trainer's thread adds to, read under its lock (a few ms)
-                if self._curves is not None:
-                    self.train.set_plot(self._curves.psnr_data())
-                    self.mirror.curves.show(self._curves)
+            with self.events.curves() as curves:
+                if curves is not None:
+                    self.train.set_plot(curves.psnr_data())
+                    self.mirror.curves.show(curves)
             self.compare.show_status()
             self._last_plot = now
-        if images is not None:
-            self.mirror.consistency.on_images(images)
-        if plane is not None:
-            self.mirror.follow_training(plane)
+        if news.images is not None:
+            self.mirror.consistency.on_images(news.images)
+        if news.plane is not None:
+            self.mirror.follow_training(news.plane)
         self.train.set_controls(self.status)
-        self._update_progress(step_ev)
+        self._update_progress(news.step)
         if self.compare.keyframes and self.setup is not None:
             cams = [c.camera.position for c in self.server.get_clients().values()]
             self.compare.hide_keyframes_at(cams, 0.05 * float(self.setup.sphere_radius))
@@ -515,7 +479,7 @@ class App(Observer):
         trainer = self.trainer
         run_dir = str(trainer.run_dir) if trainer is not None and self.setup is not None else None
         self.train.show_progress(
-            self.setup, self.status, ev, self._test_psnr, self.worker.share(), self.message, run_dir
+            self.setup, self.status, ev, self.events.test_psnr, self.worker.share(), self.message, run_dir
         )
 
 
