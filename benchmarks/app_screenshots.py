@@ -291,7 +291,7 @@ def orbit_shots(args: Args) -> None:
         )
         open_page(d, app.port, settle_s=4.0)  # a new scene: load the page afresh
         tab(d, "Mirror")
-        if app.mirror.dropped:  # the default gate doubts the mug's plane: its mirrors, drawn anyway
+        if app.mirror.mirrors.dropped:  # the default gate doubts the mug's plane: its mirrors, drawn anyway
             button(d, "Show the mirrors anyway (not trained on)")
             wait_until(
                 lambda: any("not trained on" in k for k in app.mirror.consistency.scores), 120, what="the scores"

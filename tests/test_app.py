@@ -301,7 +301,7 @@ def test_mirror_consistency_scores_and_outputs(app):
             ]
             cams = app.mirror.preview.cams if app.mirror.moved else None
             assert cams is not None and len(last_col) == len(cams) == 8
-            for cam, gt, got in zip(cams, app.mirror.flipped, last_col):
+            for cam, gt, got in zip(cams, app.mirror.mirrors.flipped, last_col):
                 rgb = app.render(cam, outputs=("rgb",))["rgb"]
                 mse = np.mean((np.clip(rgb, 0, 1).astype(np.float64) - gt) ** 2)
                 assert abs(-10.0 * np.log10(mse) - got) < 0.051  # the table shows 1 decimal
@@ -769,7 +769,9 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
 
         run(go())
         scores = next(v for k, v in a.mirror.consistency.scores.items() if "not trained on" in k)
-        assert a.mirror.preview.frame.visible and len(scores) == len(a.mirror.inputs) == len(a.mirror.preview.handles)
+        assert a.mirror.preview.frame.visible and len(scores) == len(a.mirror.mirrors.inputs) == len(
+            a.mirror.preview.handles
+        )
         assert [tuple(h.color) for h in a.mirror.preview.handles] == [palette.score_color(x) for x in scores]
         assert (
             a.mirror.consistency.frustum_shows.value == "disagreement"

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import viser
@@ -118,6 +119,64 @@ class TypedPlane:
         self.on_plane(plane)
 
 
+@dataclass(frozen=True)
+class RunMirrors:
+    """A run's mirrors as its setup gives them: what they mirror (the inputs and their flipped images, the
+    sphere, up, the initial-pose rule), the plane they start from, and what training does with them."""
+
+    inputs: list[Camera]
+    flipped: list[np.ndarray | None]
+    sphere: Sphere
+    up: np.ndarray
+    pose: str  # the initial-pose rule: reflect | lookat
+    start: Plane  # the plane training starts from (see `start_plane`)
+    trains: bool  # training uses mirrored views
+    dropped: bool  # a Flip run whose estimate was not confident: its mirrors dropped at setup
+    refining: bool  # training moves the plane (--refine-plane)
+    note: str  # what the plane shown is, for a method without mirrors
+
+    @classmethod
+    def of(cls, setup: SetupEvent) -> RunMirrors:
+        inputs = [c for c in setup.cameras if c.kind == "input"]
+        cams, sphere = [c.camera for c in inputs], Sphere(setup.sphere_center, setup.sphere_radius)
+        start, note = start_plane(setup, cams, sphere)
+        return cls(
+            inputs=cams,
+            flipped=[flip_image(c.image) if c.image is not None else None for c in inputs],
+            sphere=sphere,
+            up=np.asarray(setup.up, dtype=np.float64),
+            pose=str(setup.settings.get("mirror_pose", "reflect")),
+            start=start,
+            trains=setup.plane is not None,
+            dropped=setup.plane is None and setup.plane_estimate is not None,
+            refining=setup.plane is not None and bool(setup.settings.get("refine_plane")),
+            note=note,
+        )
+
+    def cameras(self, plane: Plane) -> list[Camera]:
+        """The initial mirrored cameras for `plane`, by the run's rule."""
+        return mirror_cameras_for_plane(self.inputs, plane, self.sphere, self.up, self.pose)
+
+
+def start_plane(setup: SetupEvent, inputs: list[Camera], sphere: Sphere) -> tuple[Plane, str]:
+    """The plane the run trains with; a doubted estimate's; else the plane a Flip run would start from,
+    with what it is."""
+    if setup.plane is not None:
+        return setup.plane, ""
+    if setup.plane_estimate is not None:  # estimated, dropped: not confident
+        return setup.plane_estimate.plane, ""
+    preset = str(setup.settings.get("mirror_plane", "official"))  # a method without mirrors
+    try:
+        return mirror_plane(preset, inputs, sphere, setup.true_plane), (
+            "this is the plane a Flip run with these settings starts from."
+        )
+    except Exception:  # auto: only an estimate knows it
+        return mirror_plane("opposite", inputs, sphere), (
+            f"a Flip run would estimate its plane (`--mirror-plane {preset}`: *Estimate "
+            "plane* below); this one only faces away from the inputs (`opposite`)."
+        )
+
+
 class MirrorLesson:
     """The Mirror tab: a plane gizmo and its square, the preview of the mirrors a plane gives, restart with
     a plane; the tab's other parts are built here and kept apart (scores, charts, trail, estimate)."""
@@ -155,11 +214,7 @@ class MirrorLesson:
         self.show_gizmo.on_update(lambda _: self._set_gizmo_visible())
         self.show_plane.on_update(lambda _: self._set_gizmo_visible())
         self._lock = threading.Lock()
-        # the run's mirrors: its inputs, their flipped images, its sphere and up, its initial-pose rule
-        self.inputs: list[Camera] = []
-        self.flipped: list[np.ndarray | None] = []
-        self.sphere: Sphere | None = None
-        self.up, self.pose = WORLD_UP.copy(), "reflect"
+        self.mirrors: RunMirrors | None = None  # the run's mirrors (None before a run)
         # the plane: the one training uses now, the one shown (moved by you or following training)
         self.train_plane: Plane | None = None
         self.plane: Plane | None = None
@@ -167,26 +222,15 @@ class MirrorLesson:
         self.quad: viser.MeshHandle | None = None  # the mirror plane's square, drawn apart from its gizmo
         self.moved = False  # you moved the plane: the gizmo no longer follows training
         self.snapped = False  # a browser is at a snapped view: the square would wash over it
-        # what the run does with its mirrors
-        self.refining = False  # this run's training moves the plane
-        self.trains_mirrors, self.dropped = True, False
         self.anyway = False  # the dropped mirrors are drawn and scored, though training ignores them
-        self.no_mirror_note = ""  # what the plane shown for a method without mirrors is
 
     # ---- per run ----------------------------------------------------------------------------
     def build(self, setup: SetupEvent) -> None:
         with self._lock:
-            inputs = [c for c in setup.cameras if c.kind == "input"]
-            self.inputs = [c.camera for c in inputs]
-            self.flipped = [flip_image(c.image) if c.image is not None else None for c in inputs]
-            self.sphere = Sphere(setup.sphere_center, setup.sphere_radius)
-            self.up = np.asarray(setup.up, dtype=np.float64)
-            self.pose = str(setup.settings.get("mirror_pose", "reflect"))
-            plane = self._start_plane(setup)
-            self.train_plane = plane
-            self.refining = setup.plane is not None and bool(setup.settings.get("refine_plane"))
+            self.mirrors = m = RunMirrors.of(setup)
+            plane = self.train_plane = m.start
             r = float(setup.sphere_radius)
-            self.trail.build(plane, setup.true_plane, r, self.refining)
+            self.trail.build(plane, setup.true_plane, r, m.refining)
             scene = self.server.scene
             self.gizmo = scene.add_transform_controls(
                 "/plane",
@@ -212,34 +256,14 @@ class MirrorLesson:
                 visible=bool(self.show_plane.value) and not self.snapped,
             )
             self.preview.clear()
-            self.trains_mirrors = setup.plane is not None
-            self.dropped = setup.plane is None and setup.plane_estimate is not None  # a Flip run, plane not confident
             self.anyway = False
-            self.consistency.anyway_btn.visible = self.dropped
+            self.consistency.anyway_btn.visible = m.dropped
             self.moved = False
             self.gizmo.on_update(self._on_gizmo)
             self._apply_plane(plane)
         self.consistency.clear()
         self.estimate.show(setup.plane_estimate)
-        self.curves.build(setup, self.refining)
-
-    def _start_plane(self, setup: SetupEvent) -> Plane:
-        """The plane the run trains with; a doubted estimate's; else the plane a Flip run would start from."""
-        if setup.plane is not None:
-            return setup.plane
-        if setup.plane_estimate is not None:  # estimated, dropped: not confident
-            return setup.plane_estimate.plane
-        preset = str(setup.settings.get("mirror_plane", "official"))  # a method without mirrors
-        try:
-            plane = mirror_plane(preset, self.inputs, self.sphere, setup.true_plane)
-            self.no_mirror_note = "this is the plane a Flip run with these settings starts from."
-        except Exception:  # auto: only an estimate knows it
-            plane = mirror_plane("opposite", self.inputs, self.sphere)
-            self.no_mirror_note = (
-                f"a Flip run would estimate its plane (`--mirror-plane {preset}`: *Estimate "
-                "plane* below); this one only faces away from the inputs (`opposite`)."
-            )
-        return plane
+        self.curves.build(setup, m.refining)
 
     def clear(self) -> None:
         with self._lock:
@@ -282,7 +306,7 @@ class MirrorLesson:
         """Training moved the plane (--refine-plane): the square and, unless you moved it, the gizmo follow;
         the trail grows and says how far it moved and, where known, its error."""
         with self._lock:
-            if self.sphere is None or not self.trail.add(plane):
+            if self.mirrors is None or not self.trail.add(plane):
                 return  # no run, or no visible change: nothing sent
             self.train_plane = plane  # Reset plane goes back to the plane training uses now
             if self.quad is not None:
@@ -290,7 +314,7 @@ class MirrorLesson:
             if self.gizmo is not None and not self.moved:  # the gizmo, the typed fields and the plane in use follow
                 self.plane = plane
                 self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane), plane.point
-                self.typed.show(plane, self.up, self.sphere.center)
+                self.typed.show(plane, self.mirrors.up, self.mirrors.sphere.center)
                 self.plane_text.content = plane_line(plane) + " - the plane training uses now."
 
     def reset_plane(self) -> None:
@@ -301,10 +325,11 @@ class MirrorLesson:
 
     def _apply_plane(self, plane: Plane) -> None:
         """Recompute the initial mirrored poses for `plane` and move the preview frustums."""
-        if self.sphere is None or not self.inputs:
+        m = self.mirrors
+        if m is None or not m.inputs:
             return
         try:
-            cams = mirror_cameras_for_plane(self.inputs, plane, self.sphere, self.up, self.pose)
+            cams = m.cameras(plane)
         except Exception as e:  # e.g. a reflected centre at the sphere centre
             self.plane_text.content = f"_Cannot mirror with this plane: {e}_"
             return
@@ -312,23 +337,24 @@ class MirrorLesson:
         self.plane = plane
         if self.quad is not None:
             self.quad.wxyz, self.quad.position = plane_wxyz(plane), plane.point
-        self.preview.show(cams, self.inputs, self.flipped, float(self.sphere.radius), self._preview_wanted(), moved)
+        self.preview.show(cams, m.inputs, m.flipped, float(m.sphere.radius), self._preview_wanted(), moved)
         self._set_preview_visible()
-        self.typed.show(plane, self.up, self.sphere.center)
+        self.typed.show(plane, m.up, m.sphere.center)
         self.plane_text.content = plane_line(plane) + self._plane_note(plane)
 
     def _plane_note(self, plane: Plane) -> str:
         """What the plane shown is to this run."""
-        if not self.trains_mirrors and self.dropped:
+        m = self.mirrors
+        if not m.trains and m.dropped:
             return (
                 " - the estimate is **not confident**, so this run trains on **no** mirrored view "
                 "(`--unconfident-plane use` keeps them). *Show the mirrors anyway* draws and scores them."
             )
-        if not self.trains_mirrors:
-            return " - this method trains on **no** mirrored view; " + self.no_mirror_note
+        if not m.trains:
+            return " - this method trains on **no** mirrored view; " + m.note
         if self.train_plane is None or not same_plane(plane, self.train_plane):
             return " - **moved**: restart to train with it."
-        return " - where training started the plane." if self.refining else " - the training plane."
+        return " - where training started the plane." if m.refining else " - the training plane."
 
     def _preview_wanted(self) -> bool:
         return bool(self.show_preview.value and (self.moved or self.anyway))
@@ -351,13 +377,16 @@ class MirrorLesson:
     def _scoring(self) -> Scoring:
         """What *Score mirrors* scores: the preview's cameras (the plane moved, or a doubted plane's
         mirrors shown anyway), else the mirrored cameras training uses now (BA's poses)."""
-        names = [f"{c.name}_flip" for c in self.inputs]
+        m = self.mirrors
+        if m is None:  # no run yet: nothing to score
+            return Scoring([], [], [], "no run yet", None)
+        names = [f"{c.name}_flip" for c in m.inputs]
         if (self.moved or self.anyway) and self.preview.cams:
             what = "plane preview" if self.moved else "doubted plane, not trained on"
-            return Scoring(self.preview.cams, self.flipped, names, f"{what}, step {self.run.step}", self.preview)
+            return Scoring(self.preview.cams, m.flipped, names, f"{what}, step {self.run.step}", self.preview)
         c2w = self.run.mirror_c2w
-        if c2w is None or len(c2w) != len(self.inputs):
-            cams = mirror_cameras_for_plane(self.inputs, self.train_plane, self.sphere, self.up, self.pose)
+        if c2w is None or len(c2w) != len(m.inputs):
+            cams = m.cameras(self.train_plane)
         else:
-            cams = [c.with_pose(T) for c, T in zip(self.inputs, c2w)]
-        return Scoring(cams, self.flipped, names, f"BA poses (now), step {self.run.step}", None)
+            cams = [c.with_pose(T) for c, T in zip(m.inputs, c2w)]
+        return Scoring(cams, m.flipped, names, f"BA poses (now), step {self.run.step}", None)
