@@ -233,13 +233,14 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     assert again.plane_estimate.to_dict() == saved, (again.plane_estimate.to_dict(), saved)
     assert again.flip.start == K and again.step == tr.step
     again.close()
+    fit = tmp_path / "fit.json"  # the separate fit's estimate, written by the young run, read by the short one
     young = Trainer(
-        TrainConfig.from_settings(**{**kw, "steps": 8, "estimate_after": 2}, out=tmp_path / "d")
+        TrainConfig.from_settings(**{**kw, "steps": 8, "estimate_after": 2}, out=tmp_path / "d", plane_file=fit)
     )  # no surface yet
     assert young.step == 2 and young.flip.start == 2 and young.plane_estimate.meta["fit_steps"] > 0  # a separate fit
     young.close()
     short = Trainer(
-        TrainConfig.from_settings(**{**kw, "steps": 159}, out=tmp_path / "e")
+        TrainConfig.from_settings(**{**kw, "steps": 159}, out=tmp_path / "e", plane_file=fit)
     )  # 40 steps > a quarter of 159
     assert short.step == 0 and short.flip.start == 0 and short.plane_estimate.meta["fit_steps"] > 0
     assert short.training.mirror_ids and short.spec.mirrors  # the mirrors train from step 0
