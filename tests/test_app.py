@@ -21,7 +21,8 @@ from flipviz.data.dataset import Plane
 from flipviz.geometry import mirror_cameras_for_plane
 from flipviz.geometry.sphere import Sphere
 from flipviz.training.config import TrainConfig
-from flipviz.viz.viser_app import App, AppConfig, train_config
+from flipviz.viz.training_session import train_config
+from flipviz.viz.viser_app import App, AppConfig
 from flipviz.viz.viser_common import (
     c2w_from_viser,
     camera_from_viser,
@@ -711,8 +712,12 @@ def test_train_b_next_to_the_running_a(app):
     try:
         run(go())
         b = app.compare.b
-        assert b.training and b.trainer.cfg.method == "bl" and b.trainer.run_dir.name == f"{app._run_dir().name}-B-bl"
-        assert b.trainer.scene.name == app.setup.scene and b.trainer.run_dir.parent == app._run_dir().parent
+        assert (
+            b.training
+            and b.trainer.cfg.method == "bl"
+            and b.trainer.run_dir.name == f"{app.session.run_dir().name}-B-bl"
+        )
+        assert b.trainer.scene.name == app.setup.scene and b.trainer.run_dir.parent == app.session.run_dir().parent
         assert (
             b.trainer.cfg.preset == "authors" and b.trainer.cfg.engine.background == "last"
         )  # B in the authors' setting
@@ -924,7 +929,7 @@ def test_a_browser_cannot_name_folders_outside_the_roots_nor_oversize_values(app
         async with ViserTestClient(url(app)) as c:
             await c.send_camera((4.0, -4.0, 3.0), size=(3000, 6000))
             await c.wait_gui("Max resolution")
-            run_before = app._run_dir()
+            run_before = app.session.run_dir()
             await c.set_value("Or a folder", "/etc")
             await until(lambda: app.compare.path_txt.value == "/etc", "the folder never arrived")
             await c.click("Load run B")
@@ -940,7 +945,7 @@ def test_a_browser_cannot_name_folders_outside_the_roots_nor_oversize_values(app
             await until(lambda: app.train.data_txt.value == "/root/.ssh", "the data folder never arrived")
             await c.click("Restart training")
             await until(lambda: "Not restarted" in app.train.restart_md.content, app.train.restart_md.content)
-            assert app._run_dir() == run_before and app.status == "running"  # A trains on
+            assert app.session.run_dir() == run_before and app.status == "running"  # A trains on
             await c.send("GuiUpdateMessage", uuid=c.gui["Max resolution"]["uuid"], updates={"value": 6000})
             view = list(app.views.clients.values())[-1]  # this client's (the newest)
             await until(lambda: view.gui["max_width"].value == 1920 and view.max_width == 1920, "not clamped")

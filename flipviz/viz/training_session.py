@@ -163,6 +163,11 @@ class TrainingSession(Observer):
         trainer = self.trainer
         return trainer.run_dir if trainer is not None else None
 
+    def scene(self) -> SceneData | None:
+        """The current run's scene (None before its trainer is built)."""
+        trainer = self.trainer
+        return trainer.scene if trainer is not None else None
+
     def previous_run(self) -> Path | None:
         """The newest run folder trained before the current one that still holds its checkpoint."""
         current = self.run_dir()

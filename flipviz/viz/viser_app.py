@@ -42,9 +42,9 @@ from flipviz.training.setup import run_split
 from flipviz.viz import palette
 from flipviz.viz.gui_thread import on_gui_thread, thread_safe_pushes
 from flipviz.viz.run_events import RunEvents
-from flipviz.viz.training_session import TrainingSession, train_config
+from flipviz.viz.training_session import TrainingSession
 from flipviz.viz.viser_common import plane_to_arg
-from flipviz.viz.viser_compare import ComparePanel, finished_runs
+from flipviz.viz.viser_compare import ComparePanel
 from flipviz.viz.viser_mirror import MirrorLesson
 from flipviz.viz.viser_novel import NovelCameras, SnapToView
 from flipviz.viz.viser_preview import LivePreview
@@ -199,14 +199,10 @@ class App:
             self.compare = ComparePanel(
                 self.server,
                 self,
-                lambda: train_config(self.cfg),
-                self._run_dir,
-                self._scene,
-                self._run_folders,
+                self.session,
                 self.browse_roots,
                 on_change=lambda: self.views.request_all(),
                 on_shown=self._compare_shown,
-                previous=self._previous_run,
             )
         with tabs.add_tab("Show", viser.Icon.EYE):
             gui.add_image(palette.legend_image(), label="Colours", format="png")
@@ -300,20 +296,6 @@ class App:
     @property
     def run_dirs(self) -> list[Path]:
         return self.session.run_dirs
-
-    def _run_dir(self) -> Path | None:
-        return self.session.run_dir()
-
-    def _previous_run(self) -> Path | None:
-        return self.session.previous_run()
-
-    def _scene(self) -> SceneData | None:
-        trainer = self.trainer
-        return trainer.scene if trainer is not None else None
-
-    def _run_folders(self) -> list[Path]:
-        """Finished runs the Compare tab offers: under runs/, beside this app's run folders, and in them."""
-        return finished_runs(self.browse_roots())
 
     def browse_roots(self) -> list[Path]:
         """The folders a browser may name (AppConfig.browse_root): all were given on the command line."""

@@ -26,7 +26,6 @@ import numpy as np
 import viser
 
 from flipviz.data.cameras import Camera
-from flipviz.data.dataset import SceneData
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
 from flipviz.files import inside_roots, next_free
@@ -36,6 +35,7 @@ from flipviz.training.evaluate import image_psnr
 from flipviz.viz import palette
 from flipviz.viz.camera_path import KEYFRAMES_FILE, write_keyframes
 from flipviz.viz.run_view import RunView
+from flipviz.viz.training_session import TrainingSession, train_config
 from flipviz.viz.viser_common import camera_from_viser, error_map, to_viser_pose, view_depth
 from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
 from flipviz.viz.viser_train import SETTING_HINT, SETTINGS
@@ -117,24 +117,16 @@ class ComparePanel:
         self,
         server: viser.ViserServer,
         run: RunView,
-        run_config: Callable[[], TrainConfig],
-        run_dir: Callable[[], Path | None],
-        scene: Callable[[], SceneData | None],
-        search: Callable[[], list[Path]],
+        session: TrainingSession,
         roots: Callable[[], list[Path]],
         on_change: Callable[[], None],
         on_shown: Callable[[bool], None] = lambda on: None,
-        previous: Callable[[], Path | None] = lambda: None,
     ) -> None:
+        """`run`: run A as the views see it; `session`: its settings, folder and the run before it;
+        `roots`: the folders a browser may open runs from (B is searched for there)."""
         gui = server.gui
-        self.server, self.run, self.run_config, self.run_dir, self.scene = server, run, run_config, run_dir, scene
-        self.search, self.roots, self.on_change, self.on_shown, self.previous = (
-            search,
-            roots,
-            on_change,
-            on_shown,
-            previous,
-        )
+        self.server, self.run, self.session, self.roots = server, run, session, roots
+        self.on_change, self.on_shown = on_change, on_shown
         self.shown = False  # whether the views show the comparison (a run B and a mode other than off)
         self.b: RunB | None = None
         self._note = NO_B  # what the tab says while there is no B (loading, or why it failed)
@@ -198,8 +190,8 @@ class ComparePanel:
 
     # ---- run B ----------------------------------------------------------------------------------
     def refresh(self) -> None:
-        mine = self.run_dir()
-        runs = [str(p) for p in self.search() if mine is None or p != Path(mine).resolve()]
+        mine = self.session.run_dir()
+        runs = [str(p) for p in finished_runs(self.roots()) if mine is None or p != Path(mine).resolve()]
         self.runs_dd.options = (NONE, *runs)
 
     def _load_chosen(self) -> None:
@@ -210,7 +202,7 @@ class ComparePanel:
         threading.Thread(target=self.load, args=(Path(chosen),), daemon=True).start()
 
     def _load_previous(self) -> None:
-        folder = self.previous()
+        folder = self.session.previous_run()
         if folder is None:
             self._say("_No previous run with a checkpoint: restart training once, then compare._")
             return
@@ -239,7 +231,7 @@ class ComparePanel:
         A's setting or `preset` (e.g. the authors' B/L beside flipviz's: the fog in unseen space)."""
         from flipviz.training.trainer import Trainer
 
-        a_dir, cfg = self.run_dir(), self.run_config()
+        a_dir, cfg = self.session.run_dir(), train_config(self.session.cfg)
         if a_dir is None:
             self._say("_Run A has not started yet._")
             return
@@ -323,7 +315,7 @@ class ComparePanel:
         if b is None or self.mode_dd.value == "off":
             return None
         mode = self.mode_dd.value
-        a_name, b_name = f"A: {run_label(self.run_config())}", f"B: {run_label(b.trainer.cfg)}"
+        a_name, b_name = f"A: {run_label(self.session.cfg)}", f"B: {run_label(b.trainer.cfg)}"
         if snapped is not None and snapped.reference is not None:
             self._score(snapped, b)
         if mode == "side by side":
@@ -408,7 +400,7 @@ class ComparePanel:
 
     def render_video(self, res: int = 200) -> threading.Thread | None:
         """Render the keyframe path for A (and B) into A's folder, in a background thread."""
-        a_dir, setup = self.run_dir(), self.run.setup
+        a_dir, setup = self.session.run_dir(), self.run.setup
         if len(self.keyframes) < 2 or a_dir is None or setup is None:
             self.video_md.content = "_Add two keyframes or more (and wait for the run to start)._"
             return None
@@ -428,7 +420,7 @@ class ComparePanel:
                 c.resized(res)
                 for c in keyframe_path(setup, keys, int(bounded(self.frames_num.value, 2, MAX_FRAMES, 60)))
             ]
-            renders = [(f"A: {run_label(self.run_config())}", lambda c: self.run.render(c))]
+            renders = [(f"A: {run_label(self.session.cfg)}", lambda c: self.run.render(c))]
             if self.b is not None:
                 b = self.b
                 renders.append((f"B: {run_label(b.trainer.cfg)}", b.render))
@@ -441,7 +433,7 @@ class ComparePanel:
                         self.video_md.content = f"_Rendering frame {done[0]} / {len(cams)}..._"
                     yield f
 
-            scene = self.scene()
+            scene = self.session.scene()
             gt = GroundTruth(scene) if scene is not None else (lambda c: None)
             path = write_mp4(
                 folder / "video_keyframes.mp4", counted(render_frames(renders, cams, gt, progress=False)), 24
