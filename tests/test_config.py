@@ -63,6 +63,8 @@ def test_with_settings_changes_only_what_it_names_and_refuses_what_no_group_has(
     changed = cfg.with_settings(steps=5, scene="lamp", method="bl")
     assert (changed.engine.steps, changed.data.scene, changed.method) == (5, "lamp", "bl")
     assert (changed.flip, changed.output) == (cfg.flip, cfg.output) and cfg.engine.steps == 600  # a copy
+    changed.output.out = Path("elsewhere")  # a group set on the copy (as `flipviz train` sets its folder)
+    assert cfg.output.out is None  # is not the original's: no group is shared between the two
     with pytest.raises(TypeError, match="stepz"):
         cfg.with_settings(stepz=5)
     with pytest.raises(TypeError, match="engine"):  # a group is not a setting

@@ -329,7 +329,7 @@ class TrainConfig:
         for k, v in settings.items():
             if k in SETTINGS:
                 changes[SETTINGS[k][0]][SETTINGS[k][1]] = v
-        groups = {g: replace(getattr(self, g), **c) for g, c in changes.items() if c}
+        groups = {g: replace(getattr(self, g), **c) for g, c in changes.items()}  # each a copy: none shared
         return replace(self, **{k: v for k, v in settings.items() if k in top}, **groups)
 
     def settings(self) -> dict[str, object]:
