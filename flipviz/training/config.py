@@ -291,6 +291,8 @@ def flag_name(cls: type, name: str) -> str:
 SETTINGS: dict[str, tuple[str, str]] = {
     flag_name(cls, f.name): (group, f.name) for group, cls in GROUPS.items() for f in fields(cls)
 }
+# flat setting name -> its type, which `TrainConfig.validate` checks each value against
+HINTS: dict[str, object] = {k: typing.get_type_hints(GROUPS[group])[name] for k, (group, name) in SETTINGS.items()}
 
 
 @dataclass
@@ -340,8 +342,7 @@ class TrainConfig:
     def validate(self: T) -> T:
         """Every setting of its type and within its stated limits, else one `UserError` line; train,
         app and bench call it, and so does every run read back from a checkpoint."""
-        hints = {"method": Method, "preset": typing.get_type_hints(TrainConfig)["preset"]}
-        hints |= {k: typing.get_type_hints(GROUPS[g])[name] for k, (g, name) in SETTINGS.items()}
+        hints = HINTS | {"method": Method, "preset": typing.get_type_hints(TrainConfig)["preset"]}
         settings = self.settings()
         for name, value in settings.items():  # the app's config adds its own fields, which tyro checked
             if not fits(value, hints[name]):

@@ -426,19 +426,14 @@ class Trainer:
         theirs = state.get("config", {})
         if not isinstance(theirs, dict):
             raise UserError(f"cannot resume: {path} is not a flipviz checkpoint (its config is not a table)")
+        mine = self.cfg.settings()
         for key in ("method", "field", "scene", "config"):
             if key in theirs and not isinstance(theirs[key], (str, int, type(None))):
                 raise UserError(
                     f"cannot resume: {path} is not a flipviz checkpoint (its {key} is a {type(theirs[key]).__name__})"
                 )
-            if (
-                key in theirs
-                and theirs[key] != self.cfg.settings()[key]
-                and not (key == "scene" and self.cfg.data.path)
-            ):
-                raise UserError(
-                    f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {self.cfg.settings()[key]!r}"
-                )
+            if key in theirs and theirs[key] != mine[key] and not (key == "scene" and self.cfg.data.path):
+                raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {mine[key]!r}")
         try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
             start = ckpt.counter(state, "field_start", 0)
             if start > 0:  # the field was restarted after the mirrors were dropped: no variance head
