@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import tyro
-from bench_resolution import held_out
+from bench_resolution import held_out, quiet_run
 
 from flipviz.data.scenes import symmetry_plane
 from flipviz.files import write_json, write_text
@@ -55,27 +55,12 @@ class Args:
 
 def train_one(job: tuple[str, int, str]) -> dict:
     """Train one Flip+U run in this process; its held-out and test scores and its plane."""
-    import torch
-
-    from flipviz.training.config import TrainConfig
     from flipviz.training.evaluate import image_psnr
-    from flipviz.training.setup import load_scene_for
-    from flipviz.training.trainer import Trainer
 
     scene, config, variant = job
-    torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = TrainConfig.from_settings(
-            scene=scene,
-            config=config,
-            no_rrd=True,
-            images_every=0,
-            checkpoint_every=0,
-            out=Path(tmp) / "run",
-            **VARIANTS[variant],
-        )
         t0 = time.perf_counter()
-        trainer = Trainer(cfg, load_scene_for(cfg))
+        trainer = quiet_run(tmp, scene=scene, config=config, **VARIANTS[variant])
         metrics = trainer.run()
         cams, truths = held_out(scene)
         held = [image_psnr(trainer.render(c, ("rgb",))["rgb"], t) for c, t in zip(cams, truths)]

@@ -69,6 +69,22 @@ def held_out(scene: str):
     return [v.camera for v in views], [v.rgb for v in views]
 
 
+def quiet_run(folder: Path, **settings):
+    """A one-off run trained in `folder` on one thread (its own process's), with no recording, periodic
+    renders or checkpoints: the held-out views are scored by the caller."""
+    import torch
+
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.setup import load_scene_for
+    from flipviz.training.trainer import Trainer
+
+    torch.set_num_threads(1)
+    cfg = TrainConfig.from_settings(
+        no_rrd=True, images_every=0, checkpoint_every=0, out=Path(folder) / "run", **settings
+    )
+    return Trainer(cfg, load_scene_for(cfg))
+
+
 def crop_truth(scene: str, camera, truth: np.ndarray) -> np.ndarray:
     """The ground truth of the crop view at CROP_RES: a built-in's rendered there; lego's `truth` (its
     EVAL_RES image, all the data has) upsampled."""
@@ -84,18 +100,14 @@ def train_one(job: tuple[str, str, str, int, int, str]) -> dict:
     import tempfile
     import time
 
-    import torch
-
-    from flipviz.training.config import TrainConfig
     from flipviz.training.evaluate import image_psnr, ssim
-    from flipviz.training.setup import load_scene_for
-    from flipviz.training.trainer import Trainer
 
     scene_name, method, setting, config, steps, out = job
     width, grid_res = SETTINGS[setting]
-    torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = TrainConfig.from_settings(
+        t0 = time.perf_counter()
+        trainer = quiet_run(
+            tmp,
             scene=scene_name,
             data=LEGO if scene_name == "lego" else None,
             method=method,
@@ -103,13 +115,7 @@ def train_one(job: tuple[str, str, str, int, int, str]) -> dict:
             res=width,
             steps=steps,
             grid_res=grid_res,
-            no_rrd=True,
-            images_every=0,
-            checkpoint_every=0,
-            out=Path(tmp) / "run",
         )
-        t0 = time.perf_counter()
-        trainer = Trainer(cfg, load_scene_for(cfg))
         trainer.run()  # its test-view scores are not read here
         run_seconds = time.perf_counter() - t0
         cams, truths = held_out(scene_name)
