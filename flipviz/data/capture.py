@@ -34,7 +34,7 @@ import numpy as np
 
 from flipviz.data.cameras import Camera, View, looked_at_point
 from flipviz.data.dataset import DatasetError, SceneData, check_width
-from flipviz.data.images import composite_on_white, read_rgba
+from flipviz.data.images import composite_on_white, image_size, read_rgba
 
 log = logging.getLogger("flipviz.data")
 
@@ -117,6 +117,7 @@ def to_pinhole(rgba: np.ndarray, intr: Intrinsics, width: int | None) -> tuple[n
 
 def read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
     """A mask file (any image; object where > 0.5 of its first channel) -> float32 (H, W) in [0, 1]."""
+    image_size(path, "mask")  # refused from its header when it is too large to decode
     m = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if m is None:
         raise DatasetError(f"cannot read mask {path}")

@@ -32,8 +32,18 @@ def check_width(res: int | None, width: int, where: object) -> None:
         raise TooWide(res, width, where)
 
 
+MAX_JSON_BYTES = 64 * 2**20  # a transforms file of 10,000 frames with their own intrinsics is about 8 MB
+MAX_FRAMES = 10_000  # frames in one transforms file: more is a damaged or hostile file, not a capture
+
+
 def read_transforms(path: Path) -> dict:
-    """A transforms JSON file (Blender or nerfstudio) as a dict; one-line DatasetError otherwise."""
+    """A transforms JSON file (Blender or nerfstudio) as a dict; one-line DatasetError otherwise. Its
+    size (MAX_JSON_BYTES) and its frame count (MAX_FRAMES) are bounded before anything is built."""
+    if path.stat().st_size > MAX_JSON_BYTES:
+        mb = path.stat().st_size / 2**20
+        raise DatasetError(
+            f"{path} is {mb:.0f} MB; flipviz reads transforms files of at most {MAX_JSON_BYTES >> 20} MB"
+        )
     try:
         meta = json.loads(path.read_text(), parse_constant=_not_json)
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -44,6 +54,9 @@ def read_transforms(path: Path) -> dict:
         raise DatasetError(
             f"{path} is malformed: the top level is a JSON {type(meta).__name__}, not an object with 'frames'"
         )
+    frames = meta.get("frames")
+    if isinstance(frames, list) and len(frames) > MAX_FRAMES:
+        raise DatasetError(f"{path} lists {len(frames):,} frames; flipviz reads at most {MAX_FRAMES:,}")
     return meta
 
 
@@ -98,8 +111,11 @@ class Plane:
         norm = float(np.linalg.norm(n))
         if not np.isfinite(norm) or norm < 1e-12:
             raise ValueError("plane normal must be a non-zero finite vector")
+        p = np.asarray(self.point, dtype=np.float64).reshape(3)
+        if not np.all(np.abs(p) <= MAX_COORDINATE):  # NaN too
+            raise ValueError(f"plane point must be finite and within +-{MAX_COORDINATE:g}")
         object.__setattr__(self, "normal", n / norm)
-        object.__setattr__(self, "point", np.asarray(self.point, dtype=np.float64).reshape(3))
+        object.__setattr__(self, "point", p)
 
     def to_dict(self) -> dict:
         return {"point": self.point.tolist(), "normal": self.normal.tolist()}
