@@ -26,7 +26,8 @@ from typing import Annotated, Literal, Union
 import tyro
 
 from flipviz.errors import Interrupted, UserError
-from flipviz.training.config import TrainConfig, preset_config
+from flipviz.options import check_ranges
+from flipviz.training.config import Res, TrainConfig, preset_config
 
 
 @dataclass
@@ -38,7 +39,7 @@ class ExportScene:
     """Built-in scene name."""
     out_dir: Annotated[Path, tyro.conf.Positional]
     """Folder to write."""
-    res: int = 100
+    res: Res = 100
     """Image width in pixels."""
     trajectory: Literal["orbit", "driveby"] = "orbit"
     """orbit: the protocol's first turn (transforms_test.json); driveby: a one-sided robot path with
@@ -51,12 +52,14 @@ def _run_train(cfg: TrainConfig) -> int:
 
     from tqdm.contrib.logging import logging_redirect_tqdm
 
+    from flipviz.training.artifacts import check_named_files
     from flipviz.training.progress import ProgressObserver
     from flipviz.training.run import make_trainer
     from flipviz.training.trainer import default_run_dir
 
     logging.basicConfig(level=logging.WARNING, format="[flipviz] %(message)s")
     cfg.validate()
+    check_named_files(cfg)  # before the scene is built: a refusal comes at once
     if cfg.output.out is None:
         cfg.output.out = default_run_dir(cfg)
     trainer = make_trainer(cfg)  # inputs checked and the run folder locked before anything is written
@@ -134,8 +137,6 @@ def _export(cmd: ExportScene) -> int:
     from flipviz.data.driveby import export_driveby
     from flipviz.files import cannot_write
 
-    if not 8 <= cmd.res <= 1024:
-        raise UserError(f"--res must be in 8..1024, got {cmd.res}")
     with cannot_write(cmd.out_dir, "the scene into"):
         (export_driveby if cmd.trajectory == "driveby" else export_scene)(cmd.scene, cmd.out_dir, res=cmd.res)
     print(f"wrote {cmd.scene} ({cmd.trajectory}) to {cmd.out_dir}")
@@ -145,6 +146,7 @@ def _export(cmd: ExportScene) -> int:
 def main(argv: list[str] | None = None) -> int:
     try:  # the first imports (torch, viser, rerun) take seconds: a Ctrl-C there is one line too
         cmd = parse_command(argv)
+        check_ranges(cmd)  # every command's numbers, before it locks, writes or loads anything
     except KeyboardInterrupt:
         print("flipviz: interrupted (SIGINT)", file=sys.stderr)
         return 128 + signal.SIGINT

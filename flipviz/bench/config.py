@@ -4,10 +4,23 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from flipviz.errors import UserError
-from flipviz.training.config import METHODS, DataConfig, EngineConfig, FlipConfig, TrainConfig
+from flipviz.options import Range
+from flipviz.training.config import (
+    METHODS,
+    BatchRays,
+    DataConfig,
+    EngineConfig,
+    FlipConfig,
+    GridRes,
+    Res,
+    Samples,
+    Seed,
+    Steps,
+    TrainConfig,
+)
 
 
 @dataclass
@@ -22,28 +35,28 @@ class BenchConfig:
     """Comma-separated methods (bl, bl+u, flip, flip+u, upper) or 'all'."""
     configs: str = "1-8"
     """Protocol configurations: '1-8', '1,3,5' or '2'."""
-    res: int = DataConfig.res
+    res: Res = DataConfig.res
     """Image width in pixels."""
-    steps: int = EngineConfig.steps
+    steps: Steps = EngineConfig.steps
     """Optimisation steps per run."""
-    batch_rays: int = EngineConfig.batch_rays
+    batch_rays: BatchRays = EngineConfig.batch_rays
     """Rays per optimisation step."""
     field: Literal["grid", "nerf"] = EngineConfig.field
     """Radiance field of every run (grid: fast dense voxel grid; nerf: the paper's MLP)."""
-    n_samples: int = EngineConfig.n_samples
+    n_samples: Samples = EngineConfig.n_samples
     """Samples per ray, in training and rendering."""
-    grid_res: tuple[int, ...] | None = EngineConfig.grid_res
+    grid_res: GridRes = EngineConfig.grid_res
     """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
     out: Path = Path("bench")
     """Output folder: results.csv/json, table.md, figures, runs/<key>/ (one folder per run)."""
-    workers: int = 1
-    """Runs at once on this machine (local executor); each gets cores // workers threads."""
+    workers: Annotated[int, Range(1, 256)] = 1
+    """Runs at once on this machine (local executor, 1..256); each gets cores // workers threads."""
     executor: Literal["local", "ray"] = "local"
     """local: processes on this machine; ray: tasks on a Ray cluster (pip install flipviz[cluster])."""
     address: str | None = None
     """Ray cluster address (e.g. 'auto' or 'ray://host:10001'); default: start a local Ray."""
-    cpus_per_run: int = 0
-    """Threads (and Ray CPUs) per run; 0: cores // workers (local) or 1 (ray)."""
+    cpus_per_run: Annotated[int, Range(0, 1024)] = 0
+    """Threads (and Ray CPUs) per run, 0..1024; 0: cores // workers (local) or 1 (ray)."""
     ablation: bool = False
     """Also run Table II: Flip+U with bundle adjustment and uncertainty each on/off."""
     mirror_plane: str = FlipConfig.mirror_plane
@@ -62,7 +75,7 @@ class BenchConfig:
     """Every run's preset: fast (flipviz's setting) | authors (the official code's loss and rendering
     choices on the grid; with --mirror-plane official, its x = 0) | paper (those on the paper's NeRF). An
     option you pass wins over the preset's; in code, build with training.config.preset_config(name, BenchConfig)."""
-    seed: int = EngineConfig.seed
+    seed: Seed = EngineConfig.seed
     """Seed of every run (each run is independent and seeded)."""
     device: str = EngineConfig.device
     """Device of every run: cpu | cuda | cuda:N."""
@@ -70,8 +83,8 @@ class BenchConfig:
     """On restart, run failed runs again (finished runs are always skipped)."""
     keep_checkpoints: bool = False
     """Keep each finished run's checkpoint.pt (large); by default only results and renders stay."""
-    grid_views: int = 4
-    """Unobserved views shown in the qualitative grid."""
+    grid_views: Annotated[int, Range(1, 8)] = 4
+    """Unobserved views shown in the qualitative grid (1..8: the protocol has 8)."""
     report_only: bool = False
     """Train nothing: rebuild the reports from every result in <out>/runs/ (e.g. after a code change)."""
     quiet: bool = False

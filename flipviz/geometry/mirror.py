@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flipviz.data.cameras import WORLD_UP, Camera, View
-from flipviz.data.dataset import DatasetError, Plane
+from flipviz.data.dataset import MAX_COORDINATE, DatasetError, Plane
 from flipviz.geometry.poses import look_at, pose_errors, reflection_matrix
 from flipviz.geometry.sphere import Sphere, fit_camera_sphere
 
@@ -62,6 +62,8 @@ def parse_plane(s: str) -> Plane:
         raise DatasetError(f"bad mirror plane {s!r}: {usage}") from None
     if len(point) != 3 or len(normal) != 3 or not np.all(np.isfinite(point + normal)):
         raise DatasetError(f"bad mirror plane {s!r}: {usage}")
+    if max(map(abs, point + normal)) > MAX_COORDINATE:  # its arithmetic (reflections, offsets) would overflow
+        raise DatasetError(f"bad mirror plane {s!r}: its numbers must lie within +-{MAX_COORDINATE:g}")
     if np.linalg.norm(normal) < 1e-12:
         raise DatasetError(f"bad mirror plane {s!r}: the normal is zero")
     return Plane(np.array(point), np.array(normal))

@@ -17,6 +17,7 @@ from typing import Annotated, Literal, TypeVar
 import tyro
 
 from flipviz.errors import UserError
+from flipviz.options import Range, check_ranges
 
 Method = Literal["bl", "bl+u", "flip", "flip+u", "upper"]
 METHODS: tuple[str, ...] = ("bl", "bl+u", "flip", "flip+u", "upper")
@@ -110,6 +111,15 @@ PAPER_PRESET: dict[str, object] = {
 PAPER_LR_DECAY = 0.2  # 5e-4 -> 1e-4 (BARF's options/nerf_blender.yaml: lr 5e-4, lr_end 1e-4)
 
 
+# The settings the bench shares with a run, each with its bounds (flipviz/options.py), stated once
+Res = Annotated[int, Range(8, 1024)]
+Steps = Annotated[int, Range(1, 10_000_000)]
+BatchRays = Annotated[int, Range(1, 1_000_000)]
+Samples = Annotated[int, Range(2, 1024)]
+GridRes = Annotated[tuple[int, ...] | None, Range(8, 512)]
+Seed = Annotated[int, Range(0, 2**63 - 1)]
+
+
 @dataclass
 class DataConfig:
     """What a run trains and is scored on: the scene, its protocol configuration, the image size."""
@@ -123,9 +133,9 @@ class DataConfig:
     """Protocol-free runs: the input frames, '' (a capture's train split, else all), 'all', '0,3,5-9' or
     'az:-60..120' (azimuth range, degrees); the other frames (or the capture's test split) are evaluated.
     Orbit scenes without it use the protocol's --config."""
-    config: int = 1
+    config: Annotated[int, Range(1, 8)] = 1
     """Protocol configuration n = 1..8 (which half ring is observed)."""
-    res: int = 100
+    res: Res = 100
     """Image width in pixels (images are square), 8..1024; at most the data's own width."""
 
 
@@ -133,22 +143,22 @@ class DataConfig:
 class EngineConfig:
     """How a run optimises and renders, whatever its method: steps, rays, field, samples, device."""
 
-    steps: int = 600
+    steps: Steps = 600
     """Optimisation steps, 1..10,000,000."""
-    batch_rays: int = 1024
+    batch_rays: BatchRays = 1024
     """Rays per step, 1..1,000,000."""
     field: Literal["grid", "nerf"] = "grid"
     """grid: fast dense voxel grid (default); nerf: vanilla NeRF MLP, the paper's setting."""
-    n_samples: int = 64
+    n_samples: Samples = 64
     """Samples per ray, in training and rendering, 2..1024. Measured on the chair at 100 px: 64 gives the
     same held-out PSNR as 128 (27.1 dB) at half the time."""
-    grid_res: tuple[int, ...] | None = None
+    grid_res: GridRes = None
     """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
     background: Literal["white", "learned", "last"] = "white"
     """What a ray's left-over transmittance sees (model/renderer.py): white (the datasets' background:
     space no view saw stays white), learned (one RGB colour, trained), or last (the official code: the
     field's colour at the ray's far end, so space no view saw shows whatever the field holds: fog)."""
-    seed: int = 0
+    seed: Seed = 0
     """Seed of the run (torch, the ray sampler, the estimate's search)."""
     device: str = "cpu"
     """cpu | cuda | cuda:N."""
@@ -170,7 +180,7 @@ class FlipConfig:
     plane_file: Path | None = None
     """With --mirror-plane auto: read the estimate from this plane.json when it exists (another run's on
     the same inputs, e.g. Flip beside Flip+U), else estimate it and write it there as well."""
-    estimate_after: int = 150
+    estimate_after: Annotated[int, Range(0, 10_000_000)] = 150
     """With --mirror-plane auto and the grid field: the steps the run trains on its inputs alone before it
     estimates the plane from its own field; the mirrored views join then, and their schedules (the NLL's
     warm-up, BA's and the plane's starts, and the field's lr with --join-lr restart) count from there.
@@ -194,7 +204,7 @@ class FlipConfig:
     (train with its mirrors, as with a confident one: the agreement gate, --disagreement-limit, drops them
     mid-training if they disagree with the inputs, and --after-drop restart then trains the inputs afresh)
     or drop (train on the inputs only from the start, as B/L does). docs/results/agreement."""
-    disagreement_limit: float = 3.25
+    disagreement_limit: Annotated[float, Range(1.0, float("inf"))] = 3.25
     """Flip methods: once the NLL is on, the mirrored views are dropped (training goes on with the inputs)
     when their squared error on the object exceeds this many times the inputs' (training/flip.py:
     Agreement); inf: never. Tuned on the training batches of the built-ins chair, truck, mug and lamp,
@@ -212,16 +222,16 @@ class FlipConfig:
     refine_plane: bool = True
     """Flip methods: the mirror plane is a parameter of training (training/flip.py: MirrorPlane); the
     mirrored cameras follow it and the mirrored rays' photometric loss moves it."""
-    plane_lr: float = 1e-2
+    plane_lr: Annotated[float, Range(0.0, 1.0)] = 1e-2
     """The plane's Adam learning rate (radians of tilt, scene units of shift per step), decaying 100x.
     Chosen on held-out orbit views (3 indices past each test view, never scored by the protocol) of the
     turned chair and the truck, configuration 1: 1e-3 / 3e-3 / 1e-2 gave 22.82 / 22.96 / 22.99 dB on the
     turned chair (22.67 with the plane fixed), and 1e-2 with --ba-start 0.5, 23.11 dB."""
-    plane_start: float = 0.0
+    plane_start: Annotated[float, Range(0.0, 1.0)] = 0.0
     """Fraction of the steps before the plane starts to move (its warm-up)."""
     ba: bool = True
     """Bundle-adjust the mirrored poses (Flip methods)."""
-    ba_start: float | None = None
+    ba_start: Annotated[float | None, Range(0.0, 1.0)] = None
     """Fraction of the steps before BA moves the mirrored poses; None: 0.5 when the plane is refined, else
     0 (BARF's BA from the first step). A plane refined from the start moves them all first: per-camera BA
     from step 0 absorbs part of the plane's error camera by camera and stalls it. Chosen on held-out views
@@ -233,9 +243,9 @@ class FlipConfig:
     """Which poses BA refines (Flip methods): the mirrored ones (the paper's text), or all (the code's)."""
     uncertainty: bool = True
     """Learned beta^2 on mirrored rays (Flip+U; --no-uncertainty gives the Table II ablation)."""
-    uncertainty_start: float = 0.2
+    uncertainty_start: Annotated[float, Range(0.0, 1.0)] = 0.2
     """Fraction of the steps trained with plain MSE before the uncertainty loss starts (paper: 10k of 50k)."""
-    density_weight: float = 0.01
+    density_weight: Annotated[float, Range(0.0, 1e6)] = 0.01
     """w of the density regulariser (w / N_s) sum sigma in the uncertainty loss (paper Sec. IV-C)."""
     beta2_mode: Literal["linear", "variance"] = "linear"
     """How the per-sample variances composite into beta_hat^2 (see flipviz/model/renderer.py)."""
@@ -261,11 +271,11 @@ class OutputConfig:
     overwrite: bool = False
     """Train afresh into an --out that holds an earlier run, deleting its checkpoint, metrics,
     renders and recordings first (without it, such a folder is refused unless --resume)."""
-    log_every: int = 10
+    log_every: Annotated[int, Range(1, 10_000_000)] = 10
     """Steps between StepEvents (>= 1)."""
-    images_every: int = 250
+    images_every: Annotated[int, Range(0, 10_000_000)] = 250
     """Steps between ImagesEvents (test renders and beta^2 maps); 0: none."""
-    checkpoint_every: int = 500
+    checkpoint_every: Annotated[int, Range(0, 10_000_000)] = 500
     """Steps between checkpoints (atomic; a non-finite state is never written); 0: only at the end."""
     eval_on_stop: bool = True
     """Evaluate the test views also when a run is stopped early."""
@@ -347,34 +357,12 @@ class TrainConfig:
         for name, value in settings.items():  # the app's config adds its own fields, which tyro checked
             if not fits(value, hints[name]):
                 raise UserError(f"--{name.replace('_', '-')} must be {type_words(hints[name])}, got {value!r}")
-        bounds = {  # name: (lowest, highest)
-            "config": (1, 8),
-            "res": (8, 1024),
-            "steps": (1, 10_000_000),
-            "batch_rays": (1, 1_000_000),
-            "n_samples": (2, 1024),
-            "log_every": (1, 10_000_000),
-            "images_every": (0, 10_000_000),
-            "checkpoint_every": (0, 10_000_000),
-            "uncertainty_start": (0.0, 1.0),
-            "density_weight": (0.0, 1e6),
-            "plane_lr": (0.0, 1.0),
-            "plane_start": (0.0, 1.0),
-            "estimate_after": (0, 10_000_000),
-            "seed": (0, 2**63 - 1),
-            "disagreement_limit": (1.0, float("inf")),
-        }
-        for name, (lo, hi) in bounds.items():
-            if not lo <= settings[name] <= hi:  # of its type already (above)
-                raise UserError(f"--{name.replace('_', '-')} must be in {lo}..{hi}, got {settings[name]!r}")
+        check_ranges(self)  # each numeric setting within the Range beside it
         flip = self.flip
-        if flip.ba_start is not None and not 0.0 <= flip.ba_start <= 1.0:
-            raise UserError(f"--ba-start must be in 0.0..1.0, got {flip.ba_start!r}")
         if flip.plane_file is not None and Path(flip.plane_file).exists() and not Path(flip.plane_file).is_file():
             raise UserError(f"--plane-file {flip.plane_file} is not a file (it is read, or written after the estimate)")
-        grid_res = self.engine.grid_res
-        if grid_res is not None and (not grid_res or any(not 8 <= r <= 512 for r in grid_res)):
-            raise UserError(f"--grid-res needs resolutions in 8..512, got {grid_res!r}")
+        if self.engine.grid_res == ():
+            raise UserError("--grid-res needs at least one resolution")
         from flipviz.geometry.mirror import PRESETS as PLANE_PRESETS
         from flipviz.geometry.mirror import parse_plane
 

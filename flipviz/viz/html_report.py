@@ -27,6 +27,7 @@ from markdown_it import MarkdownIt
 
 from flipviz.data.images import to_uint8
 from flipviz.files import cannot_write, write_text
+from flipviz.options import Range, check_ranges
 from flipviz.training.config import METHOD_LABELS
 from flipviz.viz import palette
 
@@ -117,9 +118,9 @@ class ReportConfig:
     """Run folder (with its checkpoint.pt)."""
     out: Path | None = None
     """HTML file to write (default <run>/report.html)."""
-    res: int = 200
+    res: Annotated[int, Range(16, 2048)] = 200
     """Width in pixels of the renders on the page."""
-    gif_frames: int = 40
+    gif_frames: Annotated[int, Range(0, 10_000)] = 40
     """Frames of the animated path across the unobserved side (0: none)."""
     device: str | None = None
 
@@ -291,6 +292,7 @@ def run_page(cfg: ReportConfig) -> str:
 
 
 def write_run_report(cfg: ReportConfig) -> Path:
+    check_ranges(cfg)
     out = cfg.out or Path(cfg.run) / "report.html"
     html = run_page(cfg)
     with cannot_write(out, "the report"):

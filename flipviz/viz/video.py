@@ -30,6 +30,7 @@ from flipviz.data.dataset import SceneData
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
 from flipviz.files import atomic_path, cannot_write
+from flipviz.options import Range, check_ranges
 from flipviz.training.config import METHOD_LABELS
 from flipviz.training.evaluate import image_psnr
 from flipviz.training.events import SetupEvent
@@ -51,11 +52,11 @@ class VideoConfig:
     path: str = "unobserved"
     """orbit (all round) | unobserved (through the held-out views) | a keyframes.json from the app
     (Compare tab) or a nerfstudio camera_path.json."""
-    frames: int = 100
+    frames: Annotated[int, Range(2, 10_000)] = 100
     """Frames of the path (the unobserved path rounds it so that a frame lands on every test view)."""
-    res: int = 200
+    res: Annotated[int, Range(16, 2048)] = 200
     """Width in pixels of each panel."""
-    fps: int = 24
+    fps: Annotated[int, Range(1, 120)] = 24
     out: Path | None = None
     """MP4 to write (default <first run>/video_<path>.mp4)."""
     gif: Path | None = None
@@ -66,13 +67,7 @@ class VideoConfig:
     def validate(self) -> VideoConfig:
         if not 1 <= len(self.runs) <= 2:
             raise UserError(f"flipviz video takes one run folder, or two to compare; got {len(self.runs)}")
-        for name, v, lo, hi in (
-            ("frames", self.frames, 2, 10_000),
-            ("res", self.res, 16, 2048),
-            ("fps", self.fps, 1, 120),
-        ):
-            if not lo <= v <= hi:
-                raise UserError(f"--{name} must be in {lo}..{hi}, got {v}")
+        check_ranges(self)
         return self
 
 

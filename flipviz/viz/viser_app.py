@@ -25,6 +25,7 @@ import warnings
 import webbrowser
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import viser
@@ -36,6 +37,7 @@ from flipviz.errors import UserError
 from flipviz.files import inside_roots, signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
 from flipviz.geometry.symmetry import PlaneEstimate
+from flipviz.options import Range
 from flipviz.training.config import DataConfig, EngineConfig, FlatFlags, TrainConfig, with_preset
 from flipviz.training.events import SetupEvent, StepEvent
 from flipviz.training.setup import run_split
@@ -90,17 +92,17 @@ class AppConfig(TrainConfig):
     # --steps 3000, more than `flipviz train`'s 600, so that a newcomer watches training happen (about
     # 2-3 minutes on 2 cores); the Train tab restarts with any other count.
     engine: FlatFlags[EngineConfig] = field(default_factory=lambda: EngineConfig(steps=3000))
-    port: int = 8080
-    """Port of the web app (the next free one is used when it is busy)."""
+    port: Annotated[int, Range(0, 65535)] = 8080
+    """Port of the web app (the next free one is used when it is busy; 0: any free port)."""
     host: str = "127.0.0.1"
     """Address to bind; 127.0.0.1 keeps the app local to this machine."""
     open_browser: bool = False
     """Open the app in the default web browser."""
-    view_width: int = 800
-    """Default "max resolution" (pixels, width) of the render of your own still view (up to 1920 in the GUI)."""
-    render_duty: float = 0.25
-    """At most this fraction of wall time goes to browser renders (they share the trainer's lock)."""
-    restart_checkpoints_mb: float = 500.0
+    view_width: Annotated[int, Range(128, 1920)] = 800
+    """Default "max resolution" (pixels, width, 128..1920) of the render of your own still view."""
+    render_duty: Annotated[float, Range(0.01, 1.0)] = 0.25
+    """At most this fraction (0.01..1) of wall time goes to browser renders (they share the trainer's lock)."""
+    restart_checkpoints_mb: Annotated[float, Range(0.0, 1e7)] = 500.0
     """Disk budget for the checkpoints of runs an in-app restart replaced (tens of MB each): the newest
     are kept, so Compare can load them as run B; older ones are deleted (their metrics, renders and
     recordings stay). 0 deletes each when it is replaced."""
@@ -113,8 +115,6 @@ def check_host(host: str, port: int) -> None:
     """The address can be served on (viser moves on to the next free port, but not to another host)."""
     import socket
 
-    if not 0 <= port <= 65535:
-        raise UserError(f"--port must be in 0..65535 (0: any free port), got {port}")
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as e:
@@ -131,15 +131,12 @@ def check_run_input(cfg: AppConfig) -> tuple[AppConfig, SceneData]:
     """Check the settings, load the scene and build its mirror plane, and check a --resume checkpoint,
     all before serving: bad input fails in one line, at once. Data narrower than --res (the app's 200
     px over a 100 px capture) trains at its own width: the settings come back with that --res."""
+    from flipviz.training.artifacts import check_named_files, refuse_to_overwrite
+
     cfg.validate()
     check_host(cfg.host, cfg.port)
-    if cfg.output.resume is not None:
-        from flipviz.training.checkpoint import load_checkpoint
-
-        load_checkpoint(cfg.output.resume)
+    check_named_files(cfg)
     if cfg.output.out is not None:
-        from flipviz.training.artifacts import refuse_to_overwrite
-
         refuse_to_overwrite(Path(cfg.output.out), cfg)
     try:
         scene = load_scene(cfg.data.scene, cfg.data.path, cfg.data.res)

@@ -64,7 +64,9 @@ class RenderWorker:
     """One background thread that runs render jobs, holding the trainer's lock <= `duty` of the time."""
 
     def __init__(self, duty: float = 0.25) -> None:
-        self.duty = min(max(float(duty), 0.01), 1.0)
+        if not 0.01 <= duty <= 1.0:  # NaN too: a wait of NaN seconds never returns
+            raise ValueError(f"render duty must be in 0.01..1, got {duty!r}")
+        self.duty = float(duty)
         self._jobs: dict[Hashable, _Job] = {}
         self._cv = threading.Condition()
         self._seq = 0
