@@ -123,10 +123,14 @@ class FolderLock:
         if holder is not None:
             self._f.close()
             raise UserError(f"{what} {self.path.parent} is in use by {holder}; choose another --out")
-        self._f.seek(0)
-        self._f.truncate()
-        self._f.write(f"flipviz pid {os.getpid()}")
-        self._f.flush()
+        try:  # who holds it, for a second process's refusal; a full disk refuses here, in one line
+            self._f.seek(0)
+            self._f.truncate()
+            self._f.write(f"flipviz pid {os.getpid()}")
+            self._f.flush()
+        except OSError as e:
+            self.abandon()
+            raise UserError(f"cannot write the {what} {self.path.parent}: {e.strerror or e}") from None
 
     @classmethod
     def holder(cls, folder: Path | str) -> str | None:
@@ -139,7 +143,10 @@ class FolderLock:
 
     def release(self) -> None:
         if not self._f.closed:
-            self._f.close()  # closing drops the flock
+            try:
+                self._f.close()  # closing drops the flock
+            except OSError:  # its last write could not be flushed (a full disk): the file is closed all the same
+                pass
 
     def abandon(self) -> None:
         """Release the folder, and remove it again when this lock created it and nothing else was

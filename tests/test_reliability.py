@@ -583,6 +583,7 @@ BAD += [  # what tyro refuses while parsing: one line too, not its framed box
     (["--method", "foo"], "invalid choice 'foo'"),
     (["--nosuch", "3"], "Unrecognized"),
     (["--plane-file", "."], "is not a file"),
+    (["--mirror-plane", "1e300,0,0;1,0,0"], "within +-1e+06"),  # issue 44: a traceback after the folder was locked
 ]
 
 
@@ -613,7 +614,37 @@ def _one_px_tall(root: Path, doc: dict) -> None:
         cv2.imwrite(str(png), np.full((1, 16, 4), 255, np.uint8))
 
 
+def bomb_png(path: Path, side: int = 30_000) -> None:
+    """A PNG whose header says side x side pixels (2.7 GB decoded for 30000), with a few bytes of data: what
+    a decompression bomb's header says, without its 2.6 MB of zlib (a loader must refuse it from there)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", side, side, 8, 6, 0, 0, 0)  # 8-bit RGBA
+    idat = zlib.compress(b"\0" * (1 + 4 * side))  # one row; a decoder that tries reads past it
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b""))
+
+
+def _bomb(root: Path, doc: dict) -> None:
+    bomb_png(next(root.rglob("*.png")))
+
+
+def _huge_json(root: Path, doc: dict) -> None:
+    with open(root / "transforms_test.json", "r+b") as f:  # 65 MB of it, on disk in an instant (sparse)
+        f.truncate(65 * 2**20)
+
+
 EDGES = [  # (what a hostile or damaged folder holds, the edit, what the one line says); each was a traceback
+    ("bomb", _bomb, "refused before it is decoded"),  # issue 44: a 2.6 MB PNG took 21.6 GB and the OOM killer
+    ("huge_json", _huge_json, "transforms files of at most 64 MB"),  # issue 44: 2 million frames, 600 MB
+    (
+        "many_frames",
+        lambda r, d: d | {"frames": d["frames"] * 101},
+        "lists 10,100 frames; flipviz reads at most 10,000",
+    ),
     (
         "nesting",
         lambda r, d: '{"camera_angle_x": 0.69, "frames": ' + "[" * 100_000 + "]" * 100_000 + "}",
@@ -1007,3 +1038,195 @@ def test_app_on_a_busy_port_says_where_it_serves(tmp_path):
             p.send_signal(signal.SIGINT)
             p.communicate(timeout=60)
     assert f"port {port} is busy or not allowed; serving on port" in said, said
+
+
+# ------------------------------------------------------------------------- issue 44: refusals first, nothing left
+BENCH_REFUSALS = [  # each left its --out folder behind with a lock in it
+    ["--workers", "0"],
+    ["--res", "0"],
+    ["--steps", "0"],
+    ["--seed", "-1"],
+    ["--configs", "9"],
+    ["--methods", "bogus"],
+    ["--scenes", "nosuch"],
+    ["--device", "tpu"],
+    ["--cpus-per-run", "-1"],
+    ["--grid-views", "-1"],
+    ["--mirror-plane", "sideways"],
+    ["--report-only"],  # refused once the folder is locked (it holds no results): the folder it made goes
+]
+
+
+@pytest.mark.parametrize("args", BENCH_REFUSALS, ids=[" ".join(a) for a in BENCH_REFUSALS])
+def test_a_refused_bench_leaves_no_folder(tmp_path, capsys, args):
+    code = cli.main(["bench", "--out", str(tmp_path / "bench"), *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "bench").exists()
+
+
+def test_named_files_are_refused_before_the_scene_is_built(tmp_path, capsys, monkeypatch):
+    """A missing --resume and a --rrd that is a folder are refused in one line at once: before the scene
+    is built and ray-cast (minutes on a busy machine), by train and by the app."""
+    from flipviz.training import run as run_module
+    from flipviz.viz import viser_app
+
+    def no_heavy_work(*a, **k):
+        raise AssertionError("the scene was built before the refusal")
+
+    monkeypatch.setattr(run_module, "make_trainer", no_heavy_work)
+    monkeypatch.setattr(viser_app, "load_scene", no_heavy_work)
+    cases = [("resume", tmp_path / "missing.pt", "no checkpoint at"), ("rrd", tmp_path, "a folder")]
+    for name, path, says in cases:
+        args = [f"--{name}", str(path)]
+        code = cli.main(["train", "--scene", "chair", "--out", str(tmp_path / "run"), *args])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and says in err and len(err.splitlines()) == 1, err
+        with pytest.raises(UserError, match=says):
+            viser_app.check_run_input(viser_app.AppConfig.from_settings(out=tmp_path / "app", **{name: path}))
+    assert not (tmp_path / "run").exists() and not (tmp_path / "app").exists()
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda d: d.update(w=10**30),
+        lambda d: d.update(w=10**30, h=10**30) or d.pop("cx") and d.pop("cy"),
+        lambda d: d["frames"][0].update(w=10**30),
+        lambda d: d.update(w=10**30, camera_model="OPENCV", k1=0.1),
+        lambda d: d.update(w=1e30),
+        lambda d: d.update(w=10**400),
+    ],
+    ids=["top", "top-no-centre", "frame", "opencv", "float", "beyond-float"],
+)
+def test_a_nerfstudio_size_of_ten_to_the_thirty_is_one_line(tmp_path, capsys, edit):
+    from flipviz.data.driveby import export_driveby
+
+    data = export_driveby("chair-turned", tmp_path / "cap", res=16)
+    doc = json.loads((data / "transforms.json").read_text())
+    edit(doc)
+    (data / "transforms.json").write_text(json.dumps(doc))
+    code = cli.main(["train", "--data", str(data), "--steps", "2", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "malformed" in err, err
+
+
+def bench_cmd(out: Path, *extra: str) -> list[str]:
+    """A small bench of two runs (the chair's B/L and Upper), the settings the bench tests share."""
+    return [
+        sys.executable, "-m", "flipviz.cli", "bench", "--scenes", "chair", "--methods", "bl,upper", "--configs", "1",
+        "--res", "24", "--batch-rays", "256", "--n-samples", "32", "--out", str(out), "--quiet",
+        *extra,
+    ]  # fmt: skip
+
+
+@pytest.mark.bench
+def test_a_killed_bench_worker_fails_only_its_run_which_resumes_from_its_checkpoint(tmp_path):
+    """Issue 44: `kill -9` of one of two workers. The pool notices the death and stops the other worker too:
+    its run keeps its checkpoint and goes on from it in a fresh pool (it was recorded as died, and the next
+    bench started it over). The killed run is failed, its checkpoint kept, and the next bench resumes it from
+    there. The first worker is killed: CPython's pool watches a worker it spawned after its manager began to
+    wait only from the next result on, and then the other run would simply finish."""
+    out = tmp_path / "bench"
+    cmd = bench_cmd(out, "--grid-res", "24", "--steps", "1500", "--workers", "2", "--cpus-per-run", "1")
+    p = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        t_end = time.monotonic() + 300
+        while len(ckpts := list(out.glob("runs/*/checkpoint.pt"))) < 2:  # both at step 500 (or later)
+            assert time.monotonic() < t_end and p.poll() is None, "the runs did not reach a checkpoint"
+            time.sleep(0.2)
+        pids = {json.loads((c.parent / "started.json").read_text())["pid"]: c.parent for c in ckpts}
+        victim = pids[min(pids)]  # the first worker spawned
+        os.kill(min(pids), signal.SIGKILL)
+        log, _ = p.communicate(timeout=600)
+    finally:
+        p.kill()
+    assert p.returncode == 0, log[-3000:]
+    results = {d.name: json.loads((d / "result.json").read_text()) for d in out.glob("runs/*")}
+    other = next(k for k in results if k != victim.name)
+    assert results[victim.name]["status"] == "failed" and results[victim.name]["died"], results[victim.name]
+    assert (victim / "checkpoint.pt").is_file()  # kept for the retry
+    assert results[other]["status"] == "ok" and results[other]["resumed_from_step"] >= 500, results[other]
+    r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
+    again = json.loads((victim / "result.json").read_text())
+    assert r.returncode == 0 and again["status"] == "ok" and again["resumed_from_step"] >= 500, r.stderr[-2000:]
+
+
+@pytest.mark.bench
+def test_a_bench_on_a_full_disk_is_one_line_per_run_or_one_in_all(tmp_path):
+    """Issue 44: on a disk that fills, each run fails in one line (its step-500 checkpoint, the grid refined,
+    does not fit) and the bench writes its reports; on a disk already full, the bench is one line, exit 2,
+    and leaves no folder (the lock file's write had been a traceback)."""
+    small = bench_cmd(Path("$D/bench"), "--steps", "600", "--workers", "1")
+    script = textwrap.dedent(f"""
+        head -c 12M /dev/zero > $D/filler
+        {" ".join(small)} > /dev/null 2> $D/err1.txt; echo "rc1=$?"; cp $D/err1.txt /dev/stdout | sed 's/^/err1: /'
+        ls $D/bench | sed 's/^/left1: /'
+        rm -r $D/bench $D/err1.txt; head -c 40M /dev/zero >> $D/filler 2> /dev/null
+        {" ".join(small)} > /dev/null 2> /dev/shm/err2.$$; echo "rc2=$?"; sed 's/^/err2: /' /dev/shm/err2.$$
+        ls -A $D | sed 's/^/left2: /'; rm -f /dev/shm/err2.$$
+    """)
+    out = in_small_filesystem(tmp_path, 40, script).stdout
+    errs1 = [ln for ln in out.splitlines() if ln.startswith("err1: ")]
+    assert "rc1=0" in out and "left1: table.md" in out, out
+    assert sum("FAILED" in e and "cannot write" in e for e in errs1) == 2 and "Traceback" not in out, out
+    errs2 = [ln for ln in out.splitlines() if ln.startswith("err2: ")]
+    assert "rc2=2" in out and len(errs2) == 1 and "No space left on device" in errs2[0], out
+    assert [ln for ln in out.splitlines() if ln.startswith("left2: ")] == ["left2: filler"], out
+
+
+@pytest.mark.slow
+def test_a_client_that_never_reads_leaves_the_app_memory_bounded_and_is_dropped(tmp_path):
+    """Issue 44: a websocket client connects, asks for its view and then never reads. The server stops at the
+    socket's buffer (viser awaits each send; its message buffer keeps one message per updated element),
+    keeps training and serving others, and drops the silent client at the websocket keepalive (no pong
+    within 20 s of a ping). The app's memory meanwhile grows by what training itself needs (measured: a
+    few MB in a minute, with or without such a client)."""
+    import asyncio
+    import fcntl
+    import re
+    import termios
+
+    import psutil
+    import viser
+    import websockets
+    from viser_client import ViserTestClient
+
+    p = start_app(tmp_path)
+    try:
+        url = "ws://127.0.0.1:" + re.search(r"app running at http://127\.0\.0\.1:(\d+)", wait_served(p)).group(1)
+        proc = psutil.Process(p.pid)
+
+        async def stuck() -> dict:
+            ws = await websockets.connect(url, subprotocols=[f"viser-v{viser.__version__}"], compression=None)
+            client = ViserTestClient(url)
+            client.ws = ws  # its send helpers, on this connection; no reader task: nothing is ever read
+            await client.send_camera((4.0, -4.0, 3.0))
+            ws.transport.pause_reading()
+            sock, port = ws.transport.get_extra_info("socket"), ws.transport.get_extra_info("sockname")[1]
+            seen: dict = {"rss": [], "unread": 0}
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 90:
+                await asyncio.sleep(2.0)
+                seen["rss"].append(proc.memory_info().rss)
+                seen["unread"] = max(
+                    seen["unread"], int.from_bytes(fcntl.ioctl(sock, termios.FIONREAD, b"\0" * 4), "little")
+                )
+                open_ = [c for c in proc.net_connections("tcp") if c.raddr and c.raddr.port == port]
+                if not open_ or open_[0].status != psutil.CONN_ESTABLISHED:
+                    seen["dropped_after"] = time.monotonic() - t0
+                    break
+            async with ViserTestClient(url) as other:  # the app still serves a client that reads
+                await other.send_camera((4.0, -4.0, 3.0))
+                await other.wait_gui("Max resolution")
+            return seen
+
+        seen = asyncio.run(stuck())
+        assert p.poll() is None
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.communicate(timeout=60)
+    assert seen["unread"] > 10_000, seen  # the server did send to it: the client was served, then stalled
+    assert "dropped_after" in seen and seen["dropped_after"] < 60, seen
+    growth = (max(seen["rss"][5:]) - seen["rss"][5]) / 1e6  # from 12 s on: its view rendered (as for any client)
+    assert growth < 100, (f"the app grew {growth:.0f} MB while one client did not read", seen)

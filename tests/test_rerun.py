@@ -21,7 +21,7 @@ from flipviz.training.config import TrainConfig
 from flipviz.training.events import ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.training.trainer import Trainer
 from flipviz.viz.rerun_blueprint import entity_name
-from flipviz.viz.rerun_observer import camera_paths, make_rerun_observer
+from flipviz.viz.rerun_observer import camera_paths, has_footer, make_rerun_observer
 
 STEPS, LOG_EVERY, IMAGES_EVERY = 10, 2, 5
 REPO = Path(__file__).resolve().parents[1]
@@ -230,14 +230,14 @@ CHILD = textwrap.dedent("""
     from flipviz.training.config import TrainConfig
     from flipviz.training.events import Observer
     from flipviz.training.trainer import Trainer
-    from flipviz.viz.rerun_observer import camera_paths, make_rerun_observer
+    from flipviz.viz.rerun_observer import camera_paths, has_footer, make_rerun_observer
 
     class Say(Observer):
         def on_step(self, e):
             print(e.step, flush=True)
 
     cfg = TrainConfig.from_settings(scene="chair", res=32, steps=1000, log_every=1, images_every=0, batch_rays=256,
-                      out=Path(sys.argv[1]), checkpoint_every=0, mirror_plane="official")
+                      out=Path(sys.argv[1]), checkpoint_every=1, mirror_plane="official")
     trainer = Trainer(cfg)
     trainer.add_observer(make_rerun_observer(cfg, trainer.run_dir, flush_every_s=0.0))
     trainer.add_observer(Say())
@@ -258,9 +258,33 @@ def test_killed_run_leaves_a_readable_recording(tmp_path):
         child.kill()
         child.wait(30)
     assert child.returncode == -signal.SIGKILL
-    rrd = read_rrd(out / "recording.rrd")
+    path = out / "recording.rrd"
+    rrd = read_rrd(path)
     assert "/world/sphere" in rrd and len([p for p in rrd if p.startswith("/world/cameras/input/")]) == 8
     assert sorted(rows_by_step(rrd["/curves/train/loss"], "Scalars:scalars"))[:3] == [1, 2, 3]
+    # Issue 44: what a reader and the viewer get: every chunk decodes (Rerun's own verifier, its footer check
+    # aside), and the killed file lacks only its footer, which `rerun rrd verify` reports.
+    assert rrd_verify(path, "--check-footers", "false").returncode == 0
+    assert not has_footer(path) and "footer" in rrd_verify(path).stdout + rrd_verify(path).stderr
+    # The run resumed in its folder finalises it: every recording there then verifies in full.
+    resumed = TrainConfig.from_settings(
+        scene="chair", res=32, steps=1000, batch_rays=256, images_every=0, mirror_plane="official", out=out, resume=out
+    )
+    trainer = Trainer(resumed)
+    observer = make_rerun_observer(resumed, trainer.run_dir)
+    trainer.close()
+    observer.close()
+    assert has_footer(path) and rrd_verify(path).returncode == 0, rrd_verify(path).stderr
+    again = read_rrd(path)  # the same rows, compacted
+    assert sorted(rows_by_step(again["/curves/train/loss"], "Scalars:scalars")) == sorted(
+        rows_by_step(rrd["/curves/train/loss"], "Scalars:scalars")
+    )
+
+
+def rrd_verify(path: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "rerun_cli", "rrd", "verify", *args, str(path)], capture_output=True, text=True
+    )
 
 
 def test_the_finished_recording_is_compacted(tmp_path):

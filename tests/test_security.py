@@ -120,3 +120,24 @@ def test_browser_named_folders_stay_inside_the_roots(tmp_path):
         assert "\n" not in str(e.value)
     with pytest.raises(UserError, match="outside"):
         inside_roots(root / "a", [], "run folder")  # no root named: nothing is open
+
+
+def test_run_b_never_reads_a_dataset_outside_the_roots_nor_says_whether_it_exists(run_folder, tmp_path):
+    """Issue 44: a run folder under a browse root whose saved settings name a dataset elsewhere (any path:
+    /etc, or one that does not exist) is refused by the same line, which never says whether that path exists;
+    one inside the roots that is missing says so. Without `roots` (the CLI's own report and video) the
+    dataset is the user's to name."""
+    root = tmp_path / "runs"
+    state = torch.load(run_folder / "checkpoint.pt", weights_only=True)
+    said = {}
+    for name, data in [("etc", "/etc"), ("nowhere", "/nonexistent/lego"), ("inside", str(root / "gone"))]:
+        run = root / name
+        run.mkdir(parents=True)
+        torch.save(state | {"config": state["config"] | {"data": data, "plane_file": "/etc"}}, run / "checkpoint.pt")
+        with pytest.raises(UserError) as e:
+            open_run(run, roots=[root])
+        said[name] = str(e.value).replace(data, "PATH").replace(name, "RUN")
+    assert said["etc"] == said["nowhere"] and "outside the folders this app may open" in said["etc"]
+    assert "not found" in said["inside"]
+    with pytest.raises(UserError, match="not found from here"):  # the CLI (no roots): the user named the run
+        open_run(root / "nowhere")

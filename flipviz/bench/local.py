@@ -127,6 +127,7 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
         futures = {pool.submit(_run_in_worker, t): t for t in todo}
         tasks_this_round = list(todo)
         broken: list[RunTask] = []
+        workers_seen: dict = {}  # pid -> process, taken when the pool breaks (shutdown forgets them)
         try:
             pending = set(futures)
             while pending:
@@ -135,6 +136,7 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
                     try:
                         res = f.result()
                     except BrokenProcessPool:
+                        workers_seen = workers_seen or dict(getattr(pool, "_processes", None) or {})  # no public list
                         broken.append(futures[f])
                         continue
                     on_result(res)
@@ -145,17 +147,30 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
             raise
         finally:
             pool.shutdown(wait=not broken, cancel_futures=True)
+        for proc in workers_seen.values():  # the pool stopped the others: each saves its checkpoint first
+            proc.join(STOP_GRACE_S)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
         todo = []
         for t in broken:
             res = _read_json(Path(t.run_dir) / RESULT_FILE)
+            started = _read_json(Path(t.run_dir) / STARTED_FILE)
             if res.get("finished", 0) >= round_start:  # finished just before the pool broke
                 on_result(res)
-            elif _read_json(Path(t.run_dir) / STARTED_FILE).get("started", 0) >= round_start:
-                on_result(died_result(t))  # the process died under it
+            elif started.get("started", 0) >= round_start and _died(workers_seen.get(started.get("pid"))):
+                on_result(died_result(t))  # its own process died under it (killed, out of memory)
             else:
-                todo.append(t)  # never started: try again in a fresh pool
+                todo.append(t)  # never started, or stopped because another worker died: go on in a fresh pool
         if todo and len(todo) == len(tasks_this_round):
             raise RuntimeError("bench worker processes die before starting any run")
+
+
+def _died(proc) -> bool:
+    """A worker ended by a signal it did not handle (SIGKILL, the OOM killer, a crash): its run died with it.
+    A worker the broken pool stopped with SIGTERM stopped its run gracefully, keeping its checkpoint
+    (_stop_training), and exited with a code of its own. Unknown (no such worker): died."""
+    return proc is None or proc.exitcode is None or proc.exitcode < 0
 
 
 def _read_json(path: Path) -> dict:

@@ -27,7 +27,8 @@ from flipviz.data import load_scene
 from flipviz.data.dataset import DatasetError
 from flipviz.data.scenes import SCENES
 from flipviz.errors import UserError
-from flipviz.files import FolderLock, write_json
+from flipviz.files import FolderLock, cannot_write, write_json
+from flipviz.options import check_ranges
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import TrainConfig, preset_config
 
@@ -108,8 +109,7 @@ def plan(cfg: BenchConfig) -> list[RunSpec]:
     """Every run of the bench, each once, in order scene -> configuration -> method: a configuration's
     B/L first, its Flip after B/L and B/L+U (a Flip run that drops its mirrors takes B/L's finished
     result) and its Flip+U last (by then the plane the Flip runs share is estimated)."""
-    if cfg.res < 8 or cfg.steps < 1 or cfg.workers < 1:
-        raise UserError("--res must be >= 8, --steps >= 1 and --workers >= 1")
+    check_ranges(cfg)
     methods, configs = parse_methods(cfg.methods), parse_configs(cfg.configs)
     scenes = [resolve_scene(s, cfg.data_root) for s in parse_list(cfg.scenes)]
     if not scenes:
@@ -159,15 +159,18 @@ def log(msg: str, logfile: Path | None = None) -> None:
 def run_bench(cfg: BenchConfig) -> Path:
     """Run (or resume) the bench and write results.csv/json, table.md and the figures in cfg.out;
     one bench at a time per folder (a second one is refused in one line)."""
+    check_ranges(cfg)  # every option checked before the folder is made or locked
+    specs = [] if cfg.report_only else plan(cfg)
     out = Path(cfg.out).expanduser().resolve()
     lock = FolderLock(out, "bench folder")
     try:
-        return _run_bench_locked(cfg, out)
+        with cannot_write(out, "the bench's files in"):  # a full disk: one line; runs and checkpoints stay
+            return _run_bench_locked(cfg, out, specs)
     finally:
-        lock.release()
+        lock.abandon()  # released; a folder this bench made and wrote nothing in is removed
 
 
-def _run_bench_locked(cfg: BenchConfig, out: Path) -> Path:
+def _run_bench_locked(cfg: BenchConfig, out: Path, specs: list[RunSpec]) -> Path:
     from tqdm import tqdm
 
     if cfg.report_only:
@@ -179,7 +182,6 @@ def _run_bench_locked(cfg: BenchConfig, out: Path) -> Path:
         write_html_report(out, cfg)
         log(f"reports of {len(rows)} runs rebuilt in {out}")
         return out
-    specs = plan(cfg)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     logfile = out / "bench.log"
     write_json(out / "bench.json", asdict(cfg))
@@ -193,8 +195,8 @@ def _run_bench_locked(cfg: BenchConfig, out: Path) -> Path:
             results[key] = r
             log(f"skipped {key}: already {r.get('status')} (run {r.get('run_id', '?')[:8]})", logfile)
         else:
-            if r is not None:  # a failed run is retried from scratch, not from its last checkpoint
-                (out / "runs" / key / CHECKPOINT_NAME).unlink(missing_ok=True)
+            if r is not None and not r.get("died"):  # a failed run is retried from scratch, not from its last
+                (out / "runs" / key / CHECKPOINT_NAME).unlink(missing_ok=True)  # checkpoint; a killed one resumes
             todo.append((key, spec))
     log(f"{len(specs)} runs planned: {len(results)} skipped (already done), {len(todo)} to run", logfile)
 

@@ -113,6 +113,7 @@ def execute_run(task: RunTask | dict) -> dict:
         from flipviz.training.saved_run import run_config
 
         trainer = make_trainer(run_config(task.train), resume_unfinished=True)
+        result["resumed_from_step"] = trainer.step  # > 0: it went on from the checkpoint of a stopped or killed run
         twin = _finished_twin(task, trainer)
         if twin is not None:
             metrics = _reuse_twin(trainer, Path(task.twin), twin)
@@ -195,8 +196,9 @@ def _collect_files(run_dir: Path) -> dict[str, bytes]:
 
 
 def died_result(task: RunTask, error: str = "worker process died (killed or out of memory)") -> dict:
-    """The result of a run whose process died under it, written to its folder."""
-    res = {"key": task.key, "run_id": uuid.uuid4().hex, **task.labels, "status": "failed", "error": error,
+    """The result of a run whose process died under it, written to its folder; `died`: the bench's next
+    start resumes it from its last checkpoint (a run that failed on its own starts over)."""
+    res = {"key": task.key, "run_id": uuid.uuid4().hex, **task.labels, "status": "failed", "error": error, "died": True,
            "psnr": None, "ssim": None, "lpips": None, "train_seconds": None, "steps": None, "started": None,
            "finished": time.time(), "train_config": task.train, "versions": {}}
     write_json(Path(task.run_dir) / RESULT_FILE, res)

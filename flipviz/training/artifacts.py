@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -20,7 +21,7 @@ from flipviz.data.images import save_png
 from flipviz.errors import UserError
 from flipviz.files import FolderLock, write_json
 from flipviz.geometry.symmetry import PlaneEstimate
-from flipviz.training.checkpoint import CHECKPOINT_NAME
+from flipviz.training.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from flipviz.training.config import TrainConfig
 
 PLANE_FILE, METRICS_FILE = "plane.json", "metrics.json"
@@ -46,6 +47,24 @@ def refuse_to_overwrite(run_dir: Path, cfg: TrainConfig) -> None:
             f"the recording {rrd} would go into the run folder {rrd.parent}, which {holder} is training; "
             "choose another --rrd"
         )
+
+
+def check_named_files(cfg: TrainConfig) -> None:
+    """The files a user named, checked before any heavy work (loading or rendering a scene, a plane fit),
+    each a one-line UserError: --resume a readable checkpoint, --rrd a file that can be written."""
+    if cfg.output.resume is not None:
+        load_checkpoint(cfg.output.resume)
+    if not cfg.output.no_rrd and cfg.output.rrd is not None:
+        check_recording_target(Path(cfg.output.rrd))
+
+
+def check_recording_target(path: Path) -> None:
+    """A recording can be written at `path` (a .rrd file; its folder made), else one UserError line."""
+    if path.is_dir():
+        raise UserError(f"cannot write the recording {path}: it is a folder (name a .rrd file)")
+    folder = next((p for p in path.absolute().parents if p.exists()), Path("/"))  # the nearest that exists
+    if not folder.is_dir() or not os.access(folder, os.W_OK):
+        raise UserError(f"cannot write the recording {path}: {folder} is not a folder it can write in")
 
 
 def remove_run(run_dir: Path) -> None:

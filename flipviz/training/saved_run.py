@@ -22,6 +22,7 @@ from flipviz.data.cameras import Camera
 from flipviz.data.dataset import SceneData
 from flipviz.data.protocol import Split
 from flipviz.errors import UserError
+from flipviz.files import inside_roots
 from flipviz.model import RadianceModel
 from flipviz.training import flip
 from flipviz.training.artifacts import PLANE_FILE
@@ -85,9 +86,13 @@ def run_config(settings: dict) -> TrainConfig:
         raise UserError(f"the run's saved settings are damaged ({str(e).splitlines()[0][:120]})") from None
 
 
-def open_run(run: Path | str, device: str | None = None, scene: SceneData | None = None) -> Run:
+def open_run(
+    run: Path | str, device: str | None = None, scene: SceneData | None = None, roots: list[Path] | None = None
+) -> Run:
     """A run folder (or its checkpoint.pt) read back as it was at its last checkpoint. A run another
-    process is training opens too (at its last checkpoint): nothing here writes or locks."""
+    process is training opens too (at its last checkpoint): nothing here writes or locks. `roots`: the
+    folders a browser may make the server read (the app's browse roots); the dataset the run names
+    must lie inside them, and a refusal never says whether a path outside them exists."""
     try:
         path = checkpoint_path(run)
     except FileNotFoundError:
@@ -95,7 +100,12 @@ def open_run(run: Path | str, device: str | None = None, scene: SceneData | None
         raise UserError(f"{run} is not a run folder with a checkpoint ({keep})") from None
     state = load_checkpoint(path)
     cfg = run_config(state.get("config"))
-    cfg = cfg.with_settings(resume=None, out=path.parent, device=device or cfg.engine.device, no_rrd=True).validate()
+    # what the run wrote or read besides its dataset is never opened again (its --plane-file was read once)
+    cfg = cfg.with_settings(
+        resume=None, out=path.parent, rrd=None, plane_file=None, device=device or cfg.engine.device, no_rrd=True
+    ).validate()
+    if cfg.data.path is not None and roots is not None:
+        inside_roots(cfg.data.path, roots, f"the dataset of {path.parent.name}")
     if cfg.data.path is not None and not os.path.exists(cfg.data.path):  # False for a name the system refuses
         raise UserError(f"{path.parent} was trained on {cfg.data.path}, which is not found from here")
     scene = scene if scene is not None else load_scene_for(cfg)

@@ -30,6 +30,7 @@ from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
 from flipviz.errors import UserError
 from flipviz.files import free_bytes, next_free, signals_deferred
+from flipviz.training.artifacts import check_recording_target
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import (
     CameraInfo,
@@ -498,6 +499,30 @@ def optimize_recording(path: Path, timeout_s: float = 300.0) -> bool:
         return False
 
 
+FOOTER_MAGIC = b"RRF2FOOT"  # a finalised .rrd ends with its footer (the manifest of its chunks), this, a version
+
+
+def has_footer(path: Path) -> bool:
+    """The recording was finalised (`disconnect`, the end of a run). A writer that was killed (SIGKILL, a
+    power cut) stops before its footer: every chunk up to its last flush reads (`RrdReader`, the
+    viewer, `rerun rrd verify --check-footers false`), but `rerun rrd verify` reports the footer missing."""
+    with open(path, "rb") as f:
+        f.seek(max(0, path.stat().st_size - 4 * len(FOOTER_MAGIC)))
+        return FOOTER_MAGIC in f.read()
+
+
+def finalise_killed_recordings(run_dir: Path) -> list[Path]:
+    """Give the recordings of a killed run in `run_dir` their footer (`optimize_recording` writes the
+    chunks anew, whole, with one), when a run takes the folder over again (--resume): afterwards
+    `rerun rrd verify` passes on every recording of the folder. Returns those finalised."""
+    done = []
+    for path in sorted(Path(run_dir).glob("recording*.rrd")):
+        if path.is_file() and path.stat().st_size > 0 and not has_footer(path) and optimize_recording(path):
+            log.info("finalised %s, which a killed run left without its footer", path)
+            done.append(path)
+    return done
+
+
 def recording_path(cfg: TrainConfig, run_dir: Path) -> Path | None:
     """Where a run records: cfg.output.rrd, else <run_dir>/recording.rrd. An earlier recording is never
     replaced: the run writes the next free recording.N.rrd beside it (a resumed run's recordings
@@ -507,8 +532,7 @@ def recording_path(cfg: TrainConfig, run_dir: Path) -> Path | None:
     if cfg.output.no_rrd:
         return None
     path = Path(cfg.output.rrd) if cfg.output.rrd is not None else Path(run_dir) / "recording.rrd"
-    if path.is_dir():
-        raise UserError(f"cannot write the recording {path}: it is a folder (name a .rrd file)")
+    check_recording_target(path)
     path = next_free(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -524,6 +548,7 @@ def make_rerun_observer(
 ) -> RerunObserver:
     """The observer the CLI and the app attach (see `recording_path`; cfg.output.rerun_serve); `bake`: the
     trainer's `point_cloud`, for the field's splats."""
+    finalise_killed_recordings(run_dir)  # a killed part of this run (it is resumed) ends readable and verified
     return RerunObserver(
         RerunOptions(path=recording_path(cfg, run_dir), serve=cfg.output.rerun_serve, **overrides), bake
     )

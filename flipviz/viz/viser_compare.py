@@ -220,7 +220,7 @@ class ComparePanel:
             return
         self._say(f"_Loading `{folder}`..._")
         try:
-            trainer = open_run(folder)
+            trainer = open_run(folder, roots=self.roots())
         except Exception as e:  # a bad folder: one line in the tab, the app goes on
             self._say(f"**Cannot load run B:** {str(e).splitlines()[0]}")
             return
