@@ -246,6 +246,36 @@ def test_query_colours_each_kept_sample_at_its_own_point_under_a_partial_mask():
     torch.testing.assert_close(raw, want_raw)
 
 
+def test_the_grids_gradient_accumulates_in_place_as_autograds_would():
+    """gather_rows: a grid parameter's lookups add their gradient into grid.grad in place, kept across steps
+    and zeroed in place by zero_grad(set_to_none=False); the same gradient as autograd's own gather, and so
+    the same Adam step."""
+    from flipviz.model.optim import gather_rows
+
+    torch.manual_seed(0)
+    grid = torch.nn.Parameter(torch.randn(4, 5, 6, 3))
+    ref = grid.detach().clone().requires_grad_(True)
+    opt, opt_ref = (torch.optim.Adam([p], lr=0.1) for p in (grid, ref))
+    buffers = set()
+    for _ in range(3):
+        idx = torch.randint(0, 120, (50,))  # with repeats, and a second lookup (as the TV regulariser's)
+        idx2, w = torch.randint(0, 120, (20,)), torch.randn(50, 3)
+        loss = (gather_rows(grid, idx) * w).sum() + gather_rows(grid, idx2).pow(2).sum()
+        loss_ref = (ref.view(-1, 3)[idx] * w).sum() + ref.view(-1, 3)[idx2].pow(2).sum()
+        opt.zero_grad(set_to_none=False)
+        opt_ref.zero_grad()
+        loss.backward()
+        loss_ref.backward()
+        buffers.add(grid.grad.data_ptr())
+        torch.testing.assert_close(grid.grad, ref.grad)
+        opt.step()
+        opt_ref.step()
+        torch.testing.assert_close(grid, ref)
+    assert len(buffers) == 1  # one buffer for every step
+    with torch.no_grad():
+        assert gather_rows(grid, idx).grad_fn is None  # no graph outside autograd
+
+
 def test_checkpoints_of_planar_grids_load_into_channels_last_grids():
     """A run saved with the grids as (C, 1, Z, Y, X) volumes loads to the same field."""
     m = make("grid")

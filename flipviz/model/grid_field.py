@@ -39,7 +39,7 @@ from torch import Tensor, nn
 
 from flipviz.model.encoding import posenc
 from flipviz.model.field_base import BoxField
-from flipviz.model.optim import adam
+from flipviz.model.optim import adam, gather_rows
 
 
 @dataclass
@@ -185,8 +185,7 @@ class GridField(BoxField):
     def _lerp(grid: Tensor, corners: tuple[Tensor, Tensor]) -> Tensor:
         """Trilinear lookup in a channels-last grid (Z,Y,X,C) at `corners` -> (P, C)."""
         idx, w = corners
-        C = grid.shape[-1]
-        rows = grid.view(-1, C).index_select(0, idx.reshape(-1)).view(idx.shape[0], 8, C)  # (P, 8, C)
+        rows = gather_rows(grid, idx.reshape(-1)).view(idx.shape[0], 8, grid.shape[-1])  # (P, 8, C)
         return torch.bmm(w[:, None, :], rows)[:, 0]  # sum_k w_k V[corner_k]
 
     def occupied(self, x: Tensor) -> Tensor:
@@ -305,7 +304,7 @@ class GridField(BoxField):
         both = torch.cat([idx] + nbrs)  # one gather per grid
 
         def tv(v: Tensor) -> Tensor:
-            g = v.view(-1, v.shape[-1]).index_select(0, both).view(4, -1, v.shape[-1])  # (4, n, C)
+            g = gather_rows(v, both).view(4, -1, v.shape[-1])  # (4, n, C)
             return (g[1:] - g[:1]).pow(2).mean() * 3.0  # sum over the 3 axes
 
         if c.tv_density > 0:

@@ -224,7 +224,7 @@ class Trainer:
         total = self.flip.loss(out, target, view, field_step) + self.model.regulariser()
         if not torch.isfinite(total):
             raise NonFiniteLoss(f"loss became {float(total.detach())} at step {self.step + 1}")
-        self.opt_field.zero_grad(set_to_none=True)
+        self.opt_field.zero_grad(set_to_none=False)  # in place: the grids' gradients are kept (model/optim.py)
         self.flip.zero_grad()
         total.backward()
         self.opt_field.step()
