@@ -25,8 +25,11 @@ class Empty:
     with_beta = False
 
     def query(self, x, d):
-        n = x.shape[0] * x.shape[1]
-        return torch.zeros(x.shape[:2]), lambda w: (torch.arange(n), torch.full((n, 3), 0.2), None)
+        return torch.zeros(x.shape[:2]), lambda w, rows: (
+            torch.arange(w.numel()),
+            torch.full((w.numel(), 3), 0.2),
+            None,
+        )
 
     def color(self, x, d):
         return torch.full((x.shape[0], 3), 0.2), None

@@ -12,6 +12,7 @@ from flipviz.data.cameras import rays_from_c2w
 from flipviz.data.rays import RayBank
 from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, RadianceModel
 from flipviz.model.fit import fit, image_psnr
+from flipviz.model.renderer import render_rays
 
 BBOX = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 SMALL_GRID = dict(grid_res=(16, 24), upsample_at=(0.5,), occ_start=5, occ_every=5, tv_samples=1024)
@@ -239,11 +240,71 @@ def test_query_colours_each_kept_sample_at_its_own_point_under_a_partial_mask():
     sigma, colour = f.query(x, d)
     assert 0 < int((sigma > 0).sum()) < sigma.numel()  # some samples pruned, some kept
     w = (sigma > 0).float() * 0.5  # any weight above the threshold on every occupied sample
-    keep, rgb, raw = colour(w)
+    keep, rgb, raw = colour(w, None)
     assert keep.numel() > 0
     want, want_raw = f.color(x.reshape(-1, 3)[keep], d[keep // 32])
     torch.testing.assert_close(rgb, want)
     torch.testing.assert_close(raw, want_raw)
+
+
+def test_colour_of_a_subset_of_rays_looks_up_those_rays_samples():
+    """colour(w, rows) with w the weights of some rays only (the renderer composites the rays that have
+    density): the same samples and colours as colour() over every ray, at those rays."""
+    m = make("grid")
+    bump_density(m)
+    f = m.field
+    with torch.no_grad():
+        f.feat_grid.normal_()
+        f.occ[..., : f.occ.shape[2] // 2] = False
+    o, d = random_rays(64)
+    x = o[:, None, :] + torch.linspace(1.0, 5.0, 32)[None, :, None] * d[:, None, :]
+    sigma, colour = f.query(x, d)
+    w = (sigma > 0).float() * 0.5
+    rows = torch.nonzero(w.amax(-1) > 0).squeeze(-1)[::2]  # every other ray that has density
+    keep_all, rgb_all, _ = colour(w, None)
+    keep, rgb, _ = colour(w.index_select(0, rows), rows)
+    as_all = rows[keep // 32] * 32 + keep % 32  # the subset's samples among all
+    torch.testing.assert_close(rgb, rgb_all[torch.searchsorted(keep_all, as_all)])
+
+
+def test_a_ray_without_density_is_background_and_the_others_render_as_if_all_were_composited():
+    """The renderer composites only the rays with density somewhere; a ray with none renders its
+    background exactly, and every other ray as it did when all rays were composited (here: a field whose
+    empty space holds a density of 1e-30 instead of 0, so that every ray is composited)."""
+
+    class Slab:  # density 3 in |z| < 0.3, `empty` elsewhere; colour 0.5 + 0.3 x, beta raw 0
+        with_beta = True
+
+        def __init__(self, empty: float):
+            self.empty = empty
+
+        def query(self, x, d):
+            sigma = torch.where(x[..., 2].abs() < 0.3, 3.0, self.empty)
+            flat = x.reshape(-1, 3)
+
+            def colour(w, rows):
+                at = (
+                    torch.arange(flat.shape[0])
+                    if rows is None
+                    else (rows[:, None] * x.shape[1] + torch.arange(x.shape[1])).reshape(-1)
+                )
+                return torch.arange(w.numel()), (0.5 + 0.3 * flat[at, :1]).expand(-1, 3), torch.zeros(len(at))
+
+            return sigma, colour
+
+        def color(self, x, d):
+            return (0.5 + 0.3 * x[:, :1]).expand(-1, 3), None
+
+    o = torch.tensor([[0.0, 0.0, 3.0], [0.9, 0.0, 3.0], [0.5, 0.2, -3.0], [-3.0, 0.3, 0.6]])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # the last: no slab
+    kw = dict(bbox=torch.tensor([[-1.0] * 3, [1.0] * 3]), near=0.5, far=6.0, n_samples=16, training=False, beta_min=0.1)
+    for background in ("white", "last"):
+        got = render_rays(Slab(0.0), o, d, background=background, **kw)
+        want = render_rays(Slab(1e-30), o, d, background=background, **kw)
+        for k in ("rgb", "depth", "opacity", "beta2"):
+            torch.testing.assert_close(got[k], want[k], atol=1e-6, rtol=0)
+        assert got["opacity"][3] == 0 and got["depth"][3] == 6.0 and got["beta2"][3] == pytest.approx(0.01)
+        assert torch.equal(got["rgb"][3], torch.ones(3) if background == "white" else want["rgb"][3])
 
 
 def test_the_grids_gradient_accumulates_in_place_as_autograds_would():

@@ -95,9 +95,11 @@ class Slab:
 
     def query(self, x, d):
         sigma = torch.where(x[..., 2].abs() < 0.5, self.s, 0.0)
-        n = x.shape[0] * x.shape[1]
-        every = torch.arange(n)
-        return sigma, lambda w: (every, torch.full((n, 3), 0.5), self.raw.expand(n))
+        return sigma, lambda w, rows: (
+            torch.arange(w.numel()),
+            torch.full((w.numel(), 3), 0.5),
+            self.raw.expand(w.numel()),
+        )
 
 
 @pytest.mark.parametrize("mode, sum_wp", [("linear", 0.75), ("variance", 0.3125)])

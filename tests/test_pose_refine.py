@@ -186,3 +186,39 @@ def test_unrefined_poses_do_not_move_under_joint_optimisation(chair_views):
     out = ref().detach().numpy()
     assert np.array_equal(out[[0, 2]], ref.init_c2w[[0, 2]].numpy())
     assert not np.allclose(out[1], ref.init_c2w[1].numpy())
+
+
+def test_bas_poses_are_computed_only_once_it_starts_and_the_run_is_the_same(tmp_path):
+    """Before BA's start every twist is 0: Flip.poses() gives the initial poses without calling the refiner
+    (pypose's Exp), and the run is the same, value for value, as one that calls it from step 0. A
+    checkpoint keeps whether BA is on, and a resumed run goes on calling it."""
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.trainer import Trainer
+
+    def run(force: bool, out: str) -> tuple[Trainer, list[int]]:
+        cfg = TrainConfig.from_settings(
+            scene="chair", res=24, batch_rays=256, n_samples=32, grid_res=(24,), images_every=0, log_every=1,
+            mirror_plane="official", steps=12, ba_start=0.5, out=tmp_path / out, eval_on_stop=False,
+        )  # fmt: skip
+        tr = Trainer(cfg)
+        calls: list[int] = []
+        forward = tr.flip.refiner.forward
+        tr.flip.refiner.forward = lambda: calls.append(tr.step) or forward()
+        tr.flip.ba_on = tr.flip.ba_on or force
+        while tr.step < 12:
+            tr._train_step()
+        return tr, calls
+
+    lazy, calls = run(False, "lazy")
+    always, _ = run(True, "always")
+    assert calls and min(calls) == 6  # the refiner from BA's first step on, not before
+    assert torch.equal(lazy.flip.refiner.xi, always.flip.refiner.xi) and lazy.flip.refiner.xi.abs().sum() > 0
+    for a, b in zip(lazy.model.state_dict().values(), always.model.state_dict().values()):
+        assert torch.equal(a, b)
+    state = lazy.flip.state_dict()
+    assert state["ba_on"] is True
+    lazy.flip.ba_on = False
+    lazy.flip.load_state_dict(state)
+    assert lazy.flip.ba_on
+    lazy.close()
+    always.close()

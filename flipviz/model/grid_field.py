@@ -94,6 +94,18 @@ def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
     return tuple(max(8, int(round(res * e / ext.max()))) for e in ext)  # type: ignore[return-value]
 
 
+def dilate(mask: Tensor, r: int) -> Tensor:
+    """A (Z, Y, X) bool mask grown by r voxels in each axis (a (2r+1)^3 cube: max pooling, one axis at a time)."""
+    for axis in range(3):
+        grown = mask.clone()
+        for k in range(1, r + 1):
+            lo, hi = mask.narrow(axis, 0, mask.shape[axis] - k), mask.narrow(axis, k, mask.shape[axis] - k)
+            grown.narrow(axis, k, mask.shape[axis] - k).logical_or_(lo)
+            grown.narrow(axis, 0, mask.shape[axis] - k).logical_or_(hi)
+        mask = grown
+    return mask
+
+
 class GridField(BoxField):
     def __init__(
         self,
@@ -133,25 +145,30 @@ class GridField(BoxField):
         return min(self.cfg.color_thresh, self.cfg.alpha_init / 100.0)
 
     # --- what the renderer calls -----------------------------------------------------------
-    def query(self, x: Tensor, d: Tensor) -> tuple[Tensor, Callable[[Tensor], tuple[Tensor, Tensor, Tensor | None]]]:
+    def query(
+        self, x: Tensor, d: Tensor
+    ) -> tuple[Tensor, Callable[[Tensor, Tensor | None], tuple[Tensor, Tensor, Tensor | None]]]:
         """Densities of samples x (R, N, 3) on rays d (R, 3), and their colouring by weight.
 
         sigma (R, N) is evaluated only where the occupancy mask is set (0 elsewhere). The returned
-        `colour(w)` takes the sample weights w (R, N) and evaluates colour (and beta) only where
-        w > color_thresh: it returns the flat sample indices (K,), rgb (K, 3) and beta raw (K,).
+        `colour(w, rows)` takes the sample weights w (B, N) of the rays `rows` (B,) (None: all R) and
+        evaluates colour (and beta) only where w > color_thresh: it returns the flat indices into w (K,),
+        rgb (K, 3) and beta raw (K,).
         """
         R, N = x.shape[:2]
         x_flat = x.reshape(-1, 3)
         with torch.no_grad():
             occ = torch.nonzero(self.occupied(x_flat)).squeeze(-1)  # (P,) occupied samples
-        corners = self.corners(x_flat[occ])  # (P, 8) voxel indices and weights, for both lookups
+        corners = self.corners(x_flat.index_select(0, occ))  # (P, 8) voxel indices and weights, for both lookups
         sigma = torch.zeros(R * N, device=x.device, dtype=x.dtype).index_put((occ,), self._density(corners))
 
-        def colour(w: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
+        def colour(w: Tensor, rows: Tensor | None) -> tuple[Tensor, Tensor, Tensor | None]:
             with torch.no_grad():  # w > 0 only where sigma > 0, so every kept sample is occupied
-                keep = torch.nonzero(w.reshape(-1) > self.color_thresh).squeeze(-1)  # (K,)
-                at = torch.searchsorted(occ, keep)  # (K,) rows of `corners` (both index lists are sorted)
-            rgb, raw = self._color((corners[0][at], corners[1][at]), d[keep // N])
+                keep = torch.nonzero(w.reshape(-1) > self.color_thresh).squeeze(-1)  # (K,) into w
+                ray = keep // N if rows is None else rows[keep // N]  # (K,) their ray among the R
+                at = torch.searchsorted(occ, ray * N + keep % N)  # (K,) rows of `corners` (both lists sorted)
+            picked = (corners[0].index_select(0, at), corners[1].index_select(0, at))  # the kept samples' corners
+            rgb, raw = self._color(picked, self.view_features(d).index_select(0, ray))
             return keep, rgb, raw
 
         return sigma.view(R, N), colour
@@ -201,15 +218,19 @@ class GridField(BoxField):
 
     def color(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor | None]:
         """rgb (P, 3) and beta raw (P,) (None without the beta head) at points x (P, 3), directions d (P, 3)."""
-        return self._color(self.corners(x), d)
+        return self._color(self.corners(x), self.view_features(d))
+
+    def view_features(self, d: Tensor) -> Tensor:
+        """The colour MLP's view-direction input (P, 3 + 6 view_pe): PE(d) of unit directions (no pi), or
+        (P, 0) for a view-independent field. Encoded per ray, then gathered for the ray's samples."""
+        return posenc(d, self.cfg.view_pe) if self.cfg.view_dependent else d[:, :0]
 
     def _density(self, corners: tuple[Tensor, Tensor]) -> Tensor:
         return F.softplus(self._lerp(self.density_grid, corners)[:, 0] + self.shift) / self.voxel0
 
-    def _color(self, corners: tuple[Tensor, Tensor], d: Tensor) -> tuple[Tensor, Tensor | None]:
+    def _color(self, corners: tuple[Tensor, Tensor], views: Tensor) -> tuple[Tensor, Tensor | None]:
         feat = self._lerp(self.feat_grid, corners)  # (P, C): what the grid holds at the points
-        h = torch.cat([feat, posenc(d, self.cfg.view_pe)], -1) if self.cfg.view_dependent else feat  # unit d: no pi
-        out = self.rgbnet(h)
+        out = self.rgbnet(torch.cat([feat, views], -1))  # views: view_features(d) of the points' rays
         return torch.sigmoid(out[:, :3]), self.beta_raw(feat, out)
 
     # --- schedule ------------------------------------------------------------------------
@@ -237,9 +258,7 @@ class GridField(BoxField):
         sigma = F.softplus(self.density_grid[..., 0] + self.shift) / self.voxel0  # (Z, Y, X)
         alpha = (1.0 - torch.exp(-sigma * step_len))[None, None]
         thr = min(self.cfg.occ_thresh, self.cfg.occ_rel * float(alpha.max()))
-        k = 2 * self.cfg.occ_dilate + 1
-        alpha = F.max_pool3d(alpha, k, stride=1, padding=self.cfg.occ_dilate)
-        self.occ = (alpha[0, 0] > thr).contiguous()
+        self.occ = dilate(alpha[0, 0] > thr, self.cfg.occ_dilate).contiguous()
         self._occ_idx = torch.nonzero(self.occ.view(-1)).squeeze(-1)
 
     @torch.no_grad()

@@ -114,12 +114,21 @@ class NerfField(BoxField):
         """(Z, Y, X) of the lattice a point cloud of this field is sampled on (an MLP has no voxels)."""
         return (48, 48, 48)
 
-    def query(self, x: Tensor, d: Tensor) -> tuple[Tensor, Callable[[Tensor], tuple[Tensor, Tensor, Tensor | None]]]:
-        """Densities of samples x (R, N, 3) on rays d (R, 3); colour is computed with them, for all samples."""
+    def query(
+        self, x: Tensor, d: Tensor
+    ) -> tuple[Tensor, Callable[[Tensor, Tensor | None], tuple[Tensor, Tensor, Tensor | None]]]:
+        """Densities of samples x (R, N, 3) on rays d (R, 3); colour is computed with them, for all samples
+        (of the rays `rows` the renderer composites: all but those whose density is 0 everywhere)."""
         R, N = x.shape[:2]
         sigma, rgb, raw = self(x.reshape(-1, 3), d[:, None, :].expand(R, N, 3).reshape(-1, 3))
-        every = torch.arange(R * N, device=x.device)
-        return sigma.view(R, N), lambda w: (every, rgb, raw)
+
+        def colour(w: Tensor, rows: Tensor | None) -> tuple[Tensor, Tensor, Tensor | None]:
+            if rows is None:
+                return torch.arange(w.numel(), device=x.device), rgb, raw
+            at = (rows[:, None] * N + torch.arange(N, device=x.device)).reshape(-1)  # w's samples among the R N
+            return torch.arange(w.numel(), device=x.device), rgb[at], None if raw is None else raw[at]
+
+        return sigma.view(R, N), colour
 
     def update_schedule(self, step: int, total_steps: int, step_len: float) -> bool:
         """BARF's progress p = step / total_steps; the parameters never change."""

@@ -50,9 +50,12 @@ class Field(Protocol):
 
     with_beta: bool  # the field has the variance head of Sec. IV-C
 
-    def query(self, x: Tensor, d: Tensor) -> tuple[Tensor, Callable[[Tensor], tuple[Tensor, Tensor, Tensor | None]]]:
-        """Samples x (R, N, 3) on rays with directions d (R, 3) -> sigma (R, N), and colour(w):
-        weights w (R, N) -> flat indices (K,) of the samples it coloured, rgb (K, 3), beta raw (K,)."""
+    def query(
+        self, x: Tensor, d: Tensor
+    ) -> tuple[Tensor, Callable[[Tensor, Tensor | None], tuple[Tensor, Tensor, Tensor | None]]]:
+        """Samples x (R, N, 3) on rays with directions d (R, 3) -> sigma (R, N), and colour(w, rows): weights
+        w (B, N) of the rays `rows` (B,) (None: all R) -> flat indices into w (K,) of the samples it
+        coloured, rgb (K, 3), beta raw (K,)."""
         ...
 
 
@@ -121,7 +124,7 @@ def render_rays(
             out = {k: v + zero for k, v in out.items()}
         return out
 
-    o, d = origins[hit], dirs[hit]
+    o, d = origins.index_select(0, hit), dirs.index_select(0, hit)  # (index_select: its backward adds rows)
     t0, t1 = t_in[hit], t_out[hit]
     Rh = o.shape[0]
     with torch.no_grad():
@@ -135,22 +138,33 @@ def render_rays(
         delta = (span / N).expand(Rh, N)  # segment lengths (equal bins)
     x = o[:, None, :] + t[..., None] * d[:, None, :]  # (Rh, N, 3), differentiable in o, d
     sigma, colour = field.query(x, d)  # sigma (Rh, N)
+    if background == "last":  # c_bg = c(x_N), the field's colour at the far end (its own beta is not used)
+        c_bg = field.color(x[:, -1], d)[0]  # (Rh, 3)
+        rgb = rgb.index_put((hit,), c_bg)  # each ray's background; the composited ones are replaced below
+    else:
+        c_bg = 1.0 if background_rgb is None else background_rgb  # white, or the learned colour (3,)
+
+    # A ray with no density on any sample (all in the grid's empty space, outside its occupancy mask)
+    # shows its background as it is. Only the B others are composited: the same values, fewer samples.
+    with torch.no_grad():
+        busy = torch.nonzero(sigma.amax(-1) > 0).squeeze(-1)
+    rows = None if busy.numel() == Rh else busy  # (B,) of the Rh rays; None: all
+    if rows is not None:
+        sigma, t, delta, hit = (v.index_select(0, rows) for v in (sigma, t, delta, hit))
+        c_bg = c_bg.index_select(0, rows) if background == "last" else c_bg
+    B = sigma.shape[0]
 
     # Eqn. 1, discretised: alpha_j, T_j = exp(-sum_{k<j} sigma_k delta_k), w_j = T_j alpha_j.
     tau = sigma * delta
     alpha = 1.0 - torch.exp(-tau)
     T = torch.exp(-torch.cat([torch.zeros_like(tau[:, :1]), torch.cumsum(tau, -1)[:, :-1]], -1))
-    w = T * alpha  # (Rh, N)
+    w = T * alpha  # (B, N)
 
-    keep, c, raw = colour(w)  # the samples the field coloured: flat indices (K,), rgb (K, 3), raw (K,)
-    rid, wk = keep // N, w.reshape(-1)[keep]  # their ray and weight
+    keep, c, raw = colour(w, rows)  # the samples the field coloured: flat indices into w (K,), rgb (K, 3), raw (K,)
+    rid, wk = keep // N, w.reshape(-1).index_select(0, keep)  # their ray and weight
     acc = w.sum(-1)  # opacity sum_j w_j
-    col = torch.zeros(Rh, 3, device=dev, dtype=dtype).index_add(0, rid, wk[:, None] * c)  # sum_j w_j c_j
+    col = torch.zeros(B, 3, device=dev, dtype=dtype).index_add(0, rid, wk[:, None] * c)  # sum_j w_j c_j
     dep = (w * t).sum(-1)
-    if background == "last":  # c_bg = c(x_N), the field's colour at the far end (its own beta is not used)
-        c_bg = field.color(x[:, -1], d)[0]  # (Rh, 3)
-    else:
-        c_bg = 1.0 if background_rgb is None else background_rgb  # white, or the learned colour (3,)
     h_rgb = col + (1.0 - acc)[:, None] * c_bg
     h_depth = dep + (1.0 - acc) * far
     out["rgb"] = rgb.index_put((hit,), h_rgb)
@@ -160,6 +174,6 @@ def render_rays(
     if with_beta:
         wp = wk if beta2_mode == "linear" else wk * wk
         # beta_bar^2 = beta_min^2 + softplus(raw) (Sec. IV-C); composited as in the docstring.
-        extra = torch.zeros(Rh, device=dev, dtype=dtype).index_add(0, rid, wp * F.softplus(raw))
+        extra = torch.zeros(B, device=dev, dtype=dtype).index_add(0, rid, wp * F.softplus(raw))
         out["beta2"] = beta2.index_put((hit,), beta_min**2 + extra)
     return out

@@ -227,6 +227,7 @@ class Flip:
         )
         self.ba_start = start + int(ba_start * span)  # a refined plane moves all the mirrors first
         self.opt_pose = self.refiner.make_optimizer() if self.refiner is not None else None
+        self.ba_on = self.refiner is not None and self.ba_start <= start  # poses() uses BA's refined poses
         self.opt_plane = None
         if self.plane is not None:
             self.opt_plane = adam([{"params": list(self.plane.parameters()), "lr": cfg.plane_lr}], 1e-8, (0.9, 0.999))
@@ -250,8 +251,9 @@ class Flip:
         return field_step - self.lr_from, self.steps - self.lr_from
 
     def poses(self) -> Tensor:
-        """(V, 4, 4) the current poses: inputs fixed; mirrors S_P S_P0 c2w_init Exp(xi) (IV-A, IV-B)."""
-        c2w = self.refiner() if self.refiner is not None else self.ts.init_c2w  # c2w_init Exp(xi)
+        """(V, 4, 4) the current poses: inputs fixed; mirrors S_P S_P0 c2w_init Exp(xi) (IV-A, IV-B).
+        Before BA starts every xi is 0, Exp(xi) the identity and c2w the initial pose: nothing to compute."""
+        c2w = self.refiner() if self.ba_on else self.ts.init_c2w  # c2w_init Exp(xi)
         if self.plane is None:
             return c2w
         moved = self.plane.motion() @ c2w[self.mirror_ids]  # (M, 4, 4): the mirrors follow the plane
@@ -273,6 +275,7 @@ class Flip:
         """Move the poses (BA) and, after its warm-up, the plane; `step`: the step just taken (0-based).
         Once the NLL is on, mirrors that disagree with the inputs are dropped (`Agreement`): True on
         the step they are (the trainer then restarts the field, or trains it on: --after-drop)."""
+        self.ba_on = self.ba_on or (self.refiner is not None and step + 1 >= self.ba_start)  # from the next step
         if step < self.start:
             return False  # the mirrors have not joined: nothing of theirs moves
         if self.agreement is not None and self.dropped_at is None and step >= self.gate_start:
@@ -326,6 +329,7 @@ class Flip:
             "opt_pose": self.opt_pose.state_dict() if self.opt_pose is not None else None,
             "plane": self.plane.state_dict() if self.plane is not None else None,
             "opt_plane": self.opt_plane.state_dict() if self.opt_plane is not None else None,
+            "ba_on": self.ba_on,
             "agreement": {"mirror": a.mirror, "input": a.input, "dropped_at": self.dropped_at}
             if (a := self.agreement)
             else None,
@@ -337,6 +341,9 @@ class Flip:
         for key, obj in parts.items():
             if obj is not None and state.get(key) is not None:
                 obj.load_state_dict(state[key])
+        moved = self.refiner is not None and bool(self.refiner.xi.detach().abs().sum() > 0)
+        saved = state.get("ba_on")  # saved since poses() computes BA's poses only once it is on
+        self.ba_on = self.ba_on or (saved if isinstance(saved, bool) else moved)
         agree = state.get("agreement")
         if self.agreement is not None and isinstance(agree, dict):
             self.agreement.mirror, self.agreement.input = float(agree["mirror"]), float(agree["input"])

@@ -218,7 +218,7 @@ class Trainer:
         # (R,) random pixels: the inputs' alone before the mirrors join, and after a drop
         idx = self.flip.sample(cfg.engine.batch_rays, self._gen, self.step)
         view = bank.view[idx]
-        o, d = rays_from_c2w(self.current_poses()[view], bank.dirs_cam[idx])  # (R, 3) each
+        o, d = rays_from_c2w(self.current_poses().index_select(0, view), bank.dirs_cam[idx])  # (R, 3) each
         out = self.model.render_rays(o, d, training=True)
         target = bank.rgb[idx]
         total = self.flip.loss(out, target, view, field_step) + self.model.regulariser()
