@@ -8,6 +8,7 @@ flipviz export-scene chair-turned out/drive --trajectory driveby
 flipviz video RUN [RUN_B] --path unobserved|orbit|keyframes.json [--gif out.gif]
 flipviz compare RUN_A RUN_B [--serve]     (their Rerun recordings side by side)
 flipviz report RUN                         (a self-contained HTML page of the run)
+flipviz score RUN --eval-views orbit --eval-tune-steps 100   (scored again: the released code's protocol)
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import tyro
 
 from flipviz.errors import Interrupted, UserError
 from flipviz.options import check_ranges
-from flipviz.training.config import Res, TrainConfig, preset_config
+from flipviz.training.config import EvalConfig, EvalSteps, Res, TrainConfig, preset_config
 
 
 @dataclass
@@ -44,6 +45,37 @@ class ExportScene:
     trajectory: Literal["orbit", "driveby"] = "orbit"
     """orbit: the protocol's first turn (transforms_test.json); driveby: a one-sided robot path with
     varying height and distance, plus held-out views of the far side (transforms.json)."""
+
+
+@dataclass
+class Score:
+    """Score a finished run again, under another protocol: e.g. the released code's (`--eval-views orbit
+    --eval-tune-steps 100`, each test pose tuned on its ground truth). Prints the scores and writes them
+    to <run>/scores_<views>_tune<steps>.json; the run's own metrics.json is left as it is."""
+
+    run: Annotated[Path, tyro.conf.Positional]
+    """Run folder (with its checkpoint.pt)."""
+    eval_views: Literal["unobserved", "orbit"] = EvalConfig.eval_views
+    """unobserved: the protocol's 8 test views; orbit: every orbit view the run did not train on."""
+    eval_tune_steps: EvalSteps = EvalConfig.eval_tune_steps
+    """Adam steps that tune each test pose on its ground truth first (the released code: 100)."""
+    device: str | None = None
+
+
+def _score(cmd: Score) -> int:
+    from flipviz.files import cannot_write, write_json
+    from flipviz.training.saved_run import open_run, score
+
+    run = open_run(cmd.run, cmd.device)
+    m = score(run, cmd.eval_views, cmd.eval_tune_steps)
+    out = run.run_dir / f"scores_{cmd.eval_views}_tune{cmd.eval_tune_steps}.json"
+    with cannot_write(out, "the scores"):
+        write_json(out, m)
+    print(
+        f"{run.run_dir.name}: PSNR {m['psnr']:.2f} dB, SSIM {m['ssim']:.3f} on {m['scored_views']} views "
+        f"({cmd.eval_views}, poses tuned {cmd.eval_tune_steps} steps); wrote {out}"
+    )
+    return 0
 
 
 def _run_train(cfg: TrainConfig) -> int:
@@ -173,6 +205,7 @@ def parse_command(argv: list[str] | None) -> object:
         "video": VideoConfig,
         "compare": CompareConfig,
         "report": ReportConfig,
+        "score": Score,
     }
 
     def parse(defaults: dict[type, object]) -> object:
@@ -225,6 +258,8 @@ def _dispatch(cmd) -> int:
         return _video(cmd)
     if isinstance(cmd, CompareConfig):
         return run_compare(cmd)
+    if isinstance(cmd, Score):
+        return _score(cmd)
     if isinstance(cmd, ReportConfig):
         print(f"wrote {write_run_report(cmd)} (self-contained: open it in any browser, offline)")
         return 0

@@ -181,3 +181,70 @@ def test_switching_presets_resets_what_the_old_one_chose_and_keeps_your_own_sett
     assert fast.preset == "fast" and fast.engine.n_samples == 32 and fast.engine.background == "learned"
     assert all(fast.settings()[k] == TrainConfig().settings()[k] for k in AUTHORS_PRESET if k != "background")
     assert with_preset(fast, "authors") == mine  # the round trip is the config it started from
+
+
+# ------------------------------------------------------------------ the released code's evaluation (issue 40)
+def test_a_similarity_between_camera_centres_is_recovered_and_moves_cameras_whole():
+    from flipviz.data.cameras import look_at
+    from flipviz.training.pose_tuning import Similarity
+
+    rng = np.random.default_rng(0)
+    initial = rng.normal(size=(8, 3)) * 3
+    R = Rotation_from_axis_angle(np.array([0.3, -0.5, 0.8]), 0.4)
+    moved = 1.7 * (initial - initial.mean(0)) @ R + np.array([0.5, -1.0, 2.0]) + initial.mean(0)
+    sim = Similarity.between(initial, moved)
+    c2w = look_at(initial[0], np.zeros(3))
+    out = sim.camera(c2w)
+    np.testing.assert_allclose(out[:3, 3], moved[0], atol=1e-9)  # each centre lands on its refined one
+    np.testing.assert_allclose(out[:3, :3] @ out[:3, :3].T, np.eye(3), atol=1e-9)  # still a rotation
+    assert np.allclose(Similarity.identity().camera(c2w), c2w)
+
+
+def Rotation_from_axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+
+
+@pytest.mark.slow
+def test_a_test_camera_turned_by_two_degrees_scores_clearly_higher_once_tuned(tmp_path):
+    """The released code tunes each test pose on its ground truth (100 Adam steps, 1024 pixels a step): a
+    test camera turned by 2 degrees about its own axis finds the pose back and scores clearly higher."""
+    from flipviz.geometry.poses import pose_errors
+    from flipviz.training.evaluate import image_psnr
+    from flipviz.training.pose_tuning import tune_pose
+    from flipviz.training.trainer import Trainer
+
+    cfg = TrainConfig.from_settings(
+        scene="chair", method="upper", res=48, steps=400, images_every=0, no_rrd=True, mirror_plane="official",
+        out=tmp_path / "run",
+    )  # fmt: skip
+    trainer = Trainer(cfg)
+    trainer.run()
+    view = trainer.split.tests[0]
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation_from_axis_angle(np.array([0.3, 1.0, 0.2]), np.radians(2.0))
+    off = view.camera.with_pose(view.camera.c2w @ turn)
+    tuned = tune_pose(trainer.model, off, view.rgb, 100, torch.Generator().manual_seed(0))
+    before = image_psnr(trainer.render(off)["rgb"], view.rgb)
+    after = image_psnr(trainer.render(view.camera.with_pose(tuned))["rgb"], view.rgb)
+    at_truth = image_psnr(trainer.render(view.camera)["rgb"], view.rgb)
+    assert after > before + 2.0 and after > at_truth - 1.0, (before, after, at_truth)
+    assert pose_errors(tuned, view.camera.c2w)[0] < 1.0  # degrees: most of the 2 found back
+    untuned = tune_pose(trainer.model, off, view.rgb, 0, torch.Generator())
+    assert np.array_equal(untuned, off.c2w)
+
+
+def test_orbit_views_are_every_orbit_view_the_run_did_not_train_on(tmp_path):
+    from flipviz.data import load_scene
+    from flipviz.training.setup import evaluation_views, run_split
+
+    for method, trained in (("bl", 8), ("upper", 16)):
+        cfg = TrainConfig.from_settings(scene="chair", res=16, method=method, eval_views="orbit")
+        scene = load_scene("chair", None, 16)
+        split = run_split(cfg, scene)
+        views = evaluation_views(cfg, scene, split)
+        idx = [v.index for v in views]
+        assert len(idx) == 100 - trained and len(set(idx)) == len(idx)
+        assert not {v.index for v in split.inputs} & set(idx) and set(v.index for v in split.tests) <= set(idx)
+    assert evaluation_views(cfg.with_settings(eval_views="unobserved"), scene, split) is split.tests

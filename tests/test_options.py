@@ -29,6 +29,7 @@ COMMANDS = {
     "report": (ReportConfig, ["run"]),
     "compare": (CompareConfig, ["a", "b"]),
     "export-scene": (cli.ExportScene, ["chair", "out"]),
+    "score": (cli.Score, ["run"]),
 }
 
 
@@ -86,6 +87,7 @@ INSTANCES = {  # a config of each command, for the direct checks below
     "report": lambda: ReportConfig(run=Path("run")),
     "compare": lambda: CompareConfig(runs=[Path("a"), Path("b")]),
     "export-scene": lambda: cli.ExportScene(scene="chair", out_dir=Path("out")),
+    "score": lambda: cli.Score(run=Path("run")),
 }
 
 

@@ -13,6 +13,8 @@ from flipviz.training.config import (
     BatchRays,
     DataConfig,
     EngineConfig,
+    EvalConfig,
+    EvalSteps,
     FlipConfig,
     GridRes,
     Res,
@@ -71,6 +73,10 @@ class BenchConfig:
     them at setup (the run then takes its B/L twin's result)."""
     after_drop: Literal["restart", "continue"] = FlipConfig.after_drop
     """When the agreement gate drops a run's mirrors: restart the field on the inputs, or continue it."""
+    eval_views: Literal["unobserved", "orbit"] = EvalConfig.eval_views
+    """Every run's test views: the protocol's 8 unobserved (flipviz) or every orbit view it did not train on."""
+    eval_tune_steps: EvalSteps = EvalConfig.eval_tune_steps
+    """Every run's test poses tuned on their ground truth for this many Adam steps first (the authors': 100)."""
     preset: Literal["fast", "authors", "paper"] = TrainConfig.preset
     """Every run's preset: fast (flipviz's setting) | authors (the official code's loss and rendering
     choices on the grid; with --mirror-plane official, its x = 0) | paper (those on the paper's NeRF). An

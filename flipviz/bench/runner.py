@@ -35,13 +35,19 @@ from flipviz.training.config import TrainConfig, preset_config
 # BenchConfig fields that are TrainConfig settings, passed to every run as they are.
 RUN_SETTINGS = (
     "res", "steps", "batch_rays", "field", "n_samples", "grid_res", "mirror_plane", "mirror_pose", "refine_plane", "seed", "device",
-    "preset", "unconfident_plane", "after_drop",
+    "preset", "unconfident_plane", "after_drop", "eval_views", "eval_tune_steps",
 )
 # TrainConfig fields that change where a run writes or what it logs, not what it computes.
 NOT_IN_KEY = (
     "out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop",
     "plane_file",
 )
+
+
+# Settings added after runs were stored: in a run's key only away from their default, so that those runs
+# keep their keys (and the bench skips them) while a run that sets one gets a key of its own.
+LATER_SETTINGS = ("eval_views", "eval_tune_steps")
+DEFAULTS = TrainConfig().to_dict()
 
 
 @dataclass(frozen=True)
@@ -75,6 +81,7 @@ class RunSpec:
 
     def key(self, cfg: BenchConfig) -> str:
         d = {k: v for k, v in self.train_config(cfg).to_dict().items() if k not in NOT_IN_KEY}
+        d = {k: v for k, v in d.items() if k not in LATER_SETTINGS or v != DEFAULTS[k]}  # stored runs keep their keys
         return f"{self.scene}-{self.method.replace('+', 'u')}-c{self.config}-" + hashlib.sha1(
             json.dumps(d, sort_keys=True).encode()
         ).hexdigest()[:12]

@@ -53,6 +53,6 @@ def gather_rows(grid: Tensor, idx: Tensor) -> Tensor:
     """grid.view(-1, C)[idx] (n, C) for a channels-last grid (Z, Y, X, C). For a parameter, the backward adds
     into grid.grad in place (the module docstring): `torch.autograd.grad` does not see that gradient, so a
     grid that is not a parameter (a test's, differentiated with it) takes autograd's own gather."""
-    if not (torch.is_grad_enabled() and isinstance(grid, nn.Parameter)):
+    if not (torch.is_grad_enabled() and isinstance(grid, nn.Parameter) and grid.requires_grad):
         return grid.view(-1, grid.shape[-1]).index_select(0, idx)
     return _GatherRows.apply(grid, idx)

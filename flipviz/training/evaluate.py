@@ -199,6 +199,19 @@ def blank_scores(gts: list[np.ndarray]) -> dict[str, float]:
     }
 
 
+def score_renders(scene, views: list, renders: list[dict[str, np.ndarray]]) -> dict:
+    """`score_views` of renders of `views` (their rgb, opacity, depth) against the views' ground truth, with
+    the structure scores (the scene's true depth where known) and a white image's scores beside."""
+    from flipviz.data.builtin import true_depth
+
+    structure = [
+        structure_scores(o["rgb"], v.rgb, o["opacity"], v.alpha, o["depth"], true_depth(scene, v.camera))
+        for o, v in zip(renders, views)
+    ]
+    gts = [v.rgb for v in views]
+    return score_views([o["rgb"] for o in renders], gts, [v.name for v in views], structure) | blank_scores(gts)
+
+
 def score_views(
     preds: list[np.ndarray], gts: list[np.ndarray], names: list[str], structure: list[dict] | None = None
 ) -> dict:

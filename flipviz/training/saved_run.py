@@ -28,10 +28,12 @@ from flipviz.training import flip
 from flipviz.training.artifacts import PLANE_FILE
 from flipviz.training.checkpoint import MISFIT, checkpoint_path, counter, load_checkpoint, misfit_reason
 from flipviz.training.config import TrainConfig
+from flipviz.training.evaluate import score_renders
 from flipviz.training.events import SetupEvent
 from flipviz.training.methods import TrainView, method_spec
 from flipviz.training.plane_estimate import read_estimate
-from flipviz.training.setup import fresh_model, load_scene_for, run_split, setup_event
+from flipviz.training.pose_tuning import eval_renders, test_alignment
+from flipviz.training.setup import evaluation_views, fresh_model, load_scene_for, run_split, setup_event
 
 
 @dataclass
@@ -65,6 +67,17 @@ class Run:
         """The mirrored training cameras at their refined poses."""
         poses = [] if self.mirror_poses is None else self.mirror_poses
         return [v.camera.with_pose(p) for v, p in zip(self.mirror_views, poses)]
+
+
+def score(run: Run, views: str, tune_steps: int) -> dict:
+    """The run's scores under another protocol (EvalConfig: `views`, `tune_steps`) from its checkpoint: what
+    `flipviz score` prints, e.g. a run of flipviz's protocol scored as the released code scores."""
+    cfg = run.cfg.with_settings(eval_views=views, eval_tune_steps=tune_steps).validate()
+    tests = evaluation_views(cfg, run.scene, run.split)
+    align = test_alignment(method_spec(cfg).refine_inputs, [v.camera for v in run.mirror_views], run.mirror_poses)
+    renders = eval_renders(run.render, run.model, tests, tune_steps, align, cfg.engine.seed)
+    out = score_renders(run.scene, tests, renders)
+    return out | {"eval_views": views, "eval_tune_steps": tune_steps, "scored_views": len(tests), "step": run.step}
 
 
 def run_config(settings: dict) -> TrainConfig:

@@ -24,8 +24,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from flipviz.data.cameras import View
 from flipviz.data.dataset import SceneData, check_image_size
-from flipviz.data.protocol import Split, make_split
+from flipviz.data.protocol import TURN, Split, make_split
 from flipviz.data.selection import select_split
 from flipviz.errors import UserError
 from flipviz.geometry.mirror import MirrorSet
@@ -95,6 +96,21 @@ def load_scene_for(cfg: TrainConfig) -> SceneData:
     from flipviz.data import load_scene
 
     return load_scene(cfg.data.scene, cfg.data.path, cfg.data.res)
+
+
+def evaluation_views(cfg: TrainConfig, scene: SceneData, split: Split) -> list[View]:
+    """The views a run is scored on (cfg.eval.eval_views): the protocol's unobserved views, or every view of
+    the orbit the run did not train on (a built-in's first turn is rendered for it); a capture's held-out
+    frames either way."""
+    if cfg.eval.eval_views == "unobserved" or not scene.protocol:
+        return split.tests
+    trained = {v.index for v in split.inputs} | ({v.index for v in split.uppers} if cfg.method == "upper" else set())
+    orbit = scene.views
+    if cfg.data.path is None:  # a built-in holds the protocol's views: render its whole first turn
+        from flipviz.data import load_builtin
+
+        orbit = load_builtin(scene.name, cfg.data.res, indices=range(TURN)).views
+    return [v for i, v in sorted(orbit.items()) if i not in trained]
 
 
 def run_split(cfg: TrainConfig, scene: SceneData) -> Split:

@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from flipviz.data.builtin import true_depth
 from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
@@ -48,7 +47,8 @@ from flipviz.training.events import (
     StepEvent,
 )
 from flipviz.training.plane_estimate import estimate_from_field, estimate_plane, read_estimate, shared_estimate
-from flipviz.training.setup import RunSetup, build_run, fresh_model, load_scene_for, setup_event
+from flipviz.training.pose_tuning import eval_renders, test_alignment
+from flipviz.training.setup import RunSetup, build_run, evaluation_views, fresh_model, load_scene_for, setup_event
 
 log = logging.getLogger("flipviz.training")
 
@@ -337,23 +337,19 @@ class Trainer:
         return [self.render(v.camera) for v in self.split.tests]
 
     def evaluate(self, renders: list[dict[str, np.ndarray]] | None = None, write: bool = True) -> dict:
-        """Score the unobserved test views (`renders`: render_tests(), made when not given);
-        write metrics.json, test_renders/, transforms.json."""
-        tests = self.split.tests
-        outs = self.render_tests() if renders is None else renders
-        preds = [o["rgb"] for o in outs]
-        structure = [
-            ev.structure_scores(o["rgb"], v.rgb, o["opacity"], v.alpha, o["depth"], true_depth(self.scene, v.camera))
-            for o, v in zip(outs, tests)
-        ]
-        m = ev.score_views(preds, [v.rgb for v in tests], [v.name for v in tests], structure)
-        m.update(
-            train_seconds=self.train_seconds,
-            steps=self.step,
-            **ev.blank_scores([v.rgb for v in tests]),
-            **self.report(),
-        )
+        """Score the run (cfg.eval: the unobserved test views at their poses, `renders` when given; or the
+        orbit's other views, or tuned poses: the authors' protocol); write metrics.json, test_renders/,
+        transforms.json."""
+        e = self.cfg.eval
+        tests = evaluation_views(self.cfg, self.scene, self.split)
+        if e.eval_views != "unobserved" or e.eval_tune_steps > 0 or renders is None:
+            mirrors = [v.camera for v in self.training.mirror_views]
+            align = test_alignment(self.spec.refine_inputs, mirrors, self.mirror_c2w())
+            renders = eval_renders(self.render, self.model, tests, e.eval_tune_steps, align, self.cfg.engine.seed)
+        m = ev.score_renders(self.scene, tests, renders)
+        m.update(train_seconds=self.train_seconds, steps=self.step, scored_views=len(tests), **self.report())
         if write:
+            preds = [o["rgb"] for o in renders]
             with cannot_write(self.run_dir, "the results in"):
                 artifacts.write_test_renders(self.run_dir, [v.name for v in tests], preds, [v.rgb for v in tests])
                 if self.training.mirror_ids:
