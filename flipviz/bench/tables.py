@@ -239,6 +239,14 @@ def time_table(rows: list[dict], methods: list[str]) -> str:
     return "\n".join(lines)
 
 
+def protocol_words(cfg: BenchConfig) -> str:
+    """The protocol a bench's runs were scored in, as its tables name it (training/config.py: EvalConfig)."""
+    views = "the 8 unobserved views" if cfg.eval_views == "unobserved" else "every orbit view a run did not train on"
+    if cfg.eval_tune_steps == 0:
+        return f"flipviz's protocol ({views}, at their poses)" if cfg.eval_views == "unobserved" else views
+    return f"the authors' protocol ({views}, each pose tuned {cfg.eval_tune_steps} steps on its ground truth)"
+
+
 def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
     methods = [m for m in METHOD_ORDER if m in parse_methods(cfg.methods)]
     configs = parse_configs(cfg.configs)
@@ -256,7 +264,7 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
         f"configurations {', '.join(map(str, configs))}. {n_ok}/{len(rows)} runs ok. "
         f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items()) or 'n/a'}.",
         "",
-        "## Table III: unobserved views, mean over configurations",
+        f"## Table III, {protocol_words(cfg)}: mean over configurations",
         "",
         "Cells: ours (paper). *white image*: PSNR and SSIM of an all-white image on the same views, what a"
         " render showing nothing scores. Whole-image PSNR rewards keeping unobserved space white, so the object's"
