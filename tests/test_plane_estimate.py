@@ -122,3 +122,40 @@ def test_an_unconfident_plane_is_dropped_unless_the_user_keeps_it(tmp_path, turn
     assert not dropped.training.mirror_ids and dropped.flip.refiner is None and not dropped.spec.uses_beta
     assert len(dropped.training.views) == len(bl.training.views) == 8
     assert np.array_equal(dropped.training.init_c2w.numpy(), bl.training.init_c2w.numpy())
+
+
+def test_the_estimates_point_lies_on_its_plane_when_the_surface_centroid_does_not():
+    """Issue 42: the estimate's point is the surface centroid projected onto the plane. With an unmatched
+    blob on one side (the centroid off the plane), a point reflected to the far side instead is off it."""
+    rng = np.random.default_rng(1)
+    truth = Plane(np.array([0.1, -0.2, 0.0]), np.array([np.cos(0.7), np.sin(0.7), 0.0]))
+    half = np.concatenate([c + 0.06 * rng.standard_normal((150, 3)) for c in rng.uniform(-0.8, 0.8, (8, 3))])
+    half = half[(half - truth.point) @ truth.normal > 0.05]
+    mirrored = half - 2.0 * ((half - truth.point) @ truth.normal)[:, None] * truth.normal
+    extra = truth.point + 0.7 * truth.normal + [0, 0, 0.5] + 0.03 * rng.standard_normal((40, 3))  # no partner
+    pts = np.concatenate([half, mirrored, extra])
+    assert abs((pts.mean(0) - truth.point) @ truth.normal) > 0.02  # the premise: the centroid is off the plane
+    est = search_plane(_volume(pts, np.array([[-1.5] * 3, [1.5] * 3])), np.array([0.0, 0.0, 1.0]))
+    deg, off = plane_error(est.plane, truth)
+    assert deg < 2.5 and off < 0.01, (deg, off)
+
+
+def test_a_voxel_just_behind_the_surface_an_input_saw_counts_as_seen_and_one_far_behind_does_not():
+    """Issue 42: what the inputs saw reaches two voxels behind their first surface along each ray."""
+    from flipviz.data.cameras import Camera, View, look_at
+    from flipviz.training.plane_estimate import DEPTH_RES, symmetry_volume
+
+    class Wall:  # every pixel of every input sees a surface at depth 4
+        def render_image(self, cam):
+            return {"opacity": np.ones((cam.height, cam.width)), "depth": np.full((cam.height, cam.width), 4.0)}
+
+    cam = Camera(look_at(np.array([0.0, -5.0, 0.0]), np.zeros(3)), DEPTH_RES, DEPTH_RES, DEPTH_RES * 2.0)
+    box = np.array([[-1.0] * 3, [1.0] * 3])
+    vol = symmetry_volume(Wall(), [View(cam, np.ones((DEPTH_RES, DEPTH_RES, 3), np.float32))], box, res=21)
+    cell = 2.0 / 20
+    seen = vol.seen.reshape(-1)
+    lattice = vol.lattice()
+    on_axis = (np.abs(lattice[:, 0]) < 1e-9) & (np.abs(lattice[:, 2]) < 1e-9)  # the voxels on the camera's axis
+    depth = lattice[:, 1] + 5.0  # distance from the camera along its axis
+    assert seen[on_axis & (np.abs(depth - 4.0 - cell) < 1e-6)].all()  # one voxel behind the surface
+    assert not seen[on_axis & (depth > 4.0 + 3.5 * cell)].any()  # well behind it

@@ -275,3 +275,25 @@ def test_the_fields_learning_rate_decays_again_from_the_step_the_mirrors_join(tm
     assert flip.field_lr(10) == (10, 160) and flip.field_lr(50) == (10, 120)
     flip.dropped_at = 60  # the gate dropped the mirrors and the field restarted: its own steps again
     assert flip.field_lr(50) == (50, 160)
+
+
+def test_the_mirrored_poses_follow_the_plane_in_the_world_frame(tmp_path):
+    """Issue 42: Flip.poses() moves each mirrored camera by the plane's motion in the world frame,
+    S_P S_P0 c2w (not c2w S_P S_P0, the camera frame); the inputs do not move."""
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.trainer import Trainer
+
+    cfg = TrainConfig.from_settings(
+        scene="chair", res=16, grid_res=(16,), n_samples=16, mirror_plane="official", out=tmp_path / "r"
+    )
+    tr = Trainer(cfg)
+    with torch.no_grad():
+        tr.flip.plane.tilt.copy_(torch.tensor([0.05, -0.03]))
+        tr.flip.plane.shift.fill_(0.04)
+    motion = tr.flip.plane.motion().detach()
+    poses, init = tr.flip.poses().detach(), tr.training.init_c2w
+    mirrors = tr.flip.mirror_ids
+    torch.testing.assert_close(poses[mirrors], motion @ init[mirrors], atol=1e-6, rtol=0)
+    inputs = [i for i in range(len(init)) if i not in mirrors.tolist()]
+    torch.testing.assert_close(poses[inputs], init[inputs])
+    tr.close()

@@ -332,3 +332,21 @@ def test_ba_recovers_a_perturbed_mirrored_pose_at_default_settings(tmp_path):
     assert rot1 < 0.3 * rot0 and trans1 < 0.4 * trans0, (rot0, trans0, rot1, trans1)
     inputs = [i for i, v in enumerate(tr.training.views) if v.kind == "input"]
     assert np.array_equal(poses[inputs], tr.training.init_c2w[inputs].double().numpy())  # inputs never move
+
+
+def test_a_checkpoints_step_counter_is_a_whole_number_from_zero():
+    from flipviz.training.checkpoint import counter
+
+    assert counter({"step": 0}, "step") == 0 and counter({}, "field_start", 0) == 0
+    for bad in (-1, 2.5, True, "3"):
+        with pytest.raises(ValueError):
+            counter({"step": bad}, "step")
+
+
+def test_the_white_image_score_is_that_of_an_all_white_image():
+    """blank_scores: what a render showing nothing (white) scores, the floor a table's scores stand on."""
+    gt = np.ones((16, 16, 3), np.float32)
+    gt[:8] = 0.25  # half the view is object
+    got = ev.blank_scores([gt, np.ones_like(gt)])
+    assert got["blank_psnr"] == pytest.approx((ev.image_psnr(np.ones_like(gt), gt) + 120.0) / 2)
+    assert got["blank_ssim"] == pytest.approx((ev.ssim(np.ones_like(gt), gt) + 1.0) / 2)
