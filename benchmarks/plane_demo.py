@@ -20,18 +20,18 @@ import imageio.v3 as iio
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import tyro  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import tyro
 
-from flipviz.data.dataset import Plane  # noqa: E402
-from flipviz.data.images import to_uint8  # noqa: E402
-from flipviz.files import atomic_path, write_json  # noqa: E402
-from flipviz.geometry.symmetry import plane_error  # noqa: E402
-from flipviz.training.config import TrainConfig  # noqa: E402
-from flipviz.training.events import Observer, StepEvent  # noqa: E402
-from flipviz.training.trainer import Trainer  # noqa: E402
-from flipviz.viz import palette  # noqa: E402
+from flipviz.data.dataset import Plane
+from flipviz.data.images import to_uint8
+from flipviz.files import atomic_path, write_json
+from flipviz.geometry.symmetry import plane_error
+from flipviz.training.config import TrainConfig
+from flipviz.training.events import Observer, StepEvent
+from flipviz.training.trainer import Trainer
+from flipviz.viz import palette
 
 
 @dataclass

@@ -74,7 +74,7 @@ def options(cls: type) -> Iterator[tuple[str, tuple[str, ...], object]]:
     for f in dataclasses.fields(cls):
         inner = typing.get_args(hints[f.name])[0] if typing.get_origin(hints[f.name]) is typing.Annotated else None
         if dataclasses.is_dataclass(inner):
-            for name, path, hint in options(inner):  # type: ignore[arg-type]
+            for name, path, hint in options(inner):
                 yield name, (f.name, *path), hint
         else:
             yield option_name(f.name, hints[f.name]), (f.name,), hints[f.name]

@@ -114,7 +114,7 @@ def loads_or_one_line(load: Callable[[], object], what: str) -> bool:
     except UserError as e:
         assert str(e) and "\n" not in str(e), f"{what}: a UserError of several lines: {e!r}"
         return False
-    except Exception as e:  # noqa: BLE001 - the point of the test
+    except Exception as e:
         raise AssertionError(f"{what}: {type(e).__name__}: {str(e)[:300]}") from e
 
 

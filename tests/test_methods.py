@@ -85,7 +85,7 @@ def test_ablation_switches(chair):
 
 def test_unknown_method():
     with pytest.raises(UserError, match="unknown method"):
-        method_spec(TrainConfig.from_settings(method="nope"))  # type: ignore[arg-type]
+        method_spec(TrainConfig.from_settings(method="nope"))
     assert set(METHODS) == {"bl", "bl+u", "flip", "flip+u", "upper"}
 
 

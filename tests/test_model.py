@@ -58,7 +58,7 @@ def small_config(kind: str, n_samples: int | None = None, **field_kw) -> ModelCo
 
 def make(kind: str, with_beta: bool = True, beta2_mode: str = "linear", beta_min: float = 0.1, **kw) -> RadianceModel:
     cfg = small_config(kind, **kw)
-    cfg.beta2_mode, cfg.beta_min = beta2_mode, beta_min  # type: ignore[assignment]
+    cfg.beta2_mode, cfg.beta_min = beta2_mode, beta_min
     return RadianceModel(cfg, BBOX, 0.5, 6.0, with_beta, "cpu")
 
 

@@ -68,8 +68,16 @@ TABLE2: dict[tuple[bool, bool], dict[str, float]] = {
 
 # NeRF-synthetic folder names (as in nerf_synthetic/) -> the paper's row name.
 NERF_SYNTHETIC: dict[str, str] = {
-    "chair": "Chairs", "chairs": "Chairs", "lego": "Lego", "materials": "Materials", "ship": "Ship",
-    "drums": "Drum", "drum": "Drum", "ficus": "Ficus", "hotdog": "Hotdog", "mic": "Mic",
+    "chair": "Chairs",
+    "chairs": "Chairs",
+    "lego": "Lego",
+    "materials": "Materials",
+    "ship": "Ship",
+    "drums": "Drum",
+    "drum": "Drum",
+    "ficus": "Ficus",
+    "hotdog": "Hotdog",
+    "mic": "Mic",
 }
 
 

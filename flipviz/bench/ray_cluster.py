@@ -11,8 +11,9 @@ from flipviz.bench.task import RunTask, died_result, execute_run
 from flipviz.files import atomic_path
 
 
-def run_ray(tasks: list[RunTask], address: str | None, cpus_per_run: int, gpus_per_run: float,
-            on_result: Callable[[dict], None]) -> None:
+def run_ray(
+    tasks: list[RunTask], address: str | None, cpus_per_run: int, gpus_per_run: float, on_result: Callable[[dict], None]
+) -> None:
     """Spread tasks over a Ray cluster (`address`, or a local Ray when None / 'local')."""
     try:
         import ray
@@ -33,8 +34,9 @@ def run_ray(tasks: list[RunTask], address: str | None, cpus_per_run: int, gpus_p
             ray.shutdown()
 
 
-def _run_ray_tasks(ray, tasks: list[RunTask], cpus_per_run: int, gpus_per_run: float, env_vars: dict,
-                   on_result: Callable[[dict], None]) -> None:
+def _run_ray_tasks(
+    ray, tasks: list[RunTask], cpus_per_run: int, gpus_per_run: float, env_vars: dict, on_result: Callable[[dict], None]
+) -> None:
     remote = ray.remote(execute_run).options(
         num_cpus=cpus_per_run, num_gpus=gpus_per_run, max_retries=0, runtime_env={"env_vars": env_vars}
     )

@@ -40,7 +40,8 @@ def main_rows(rows: list[dict], scene: str, method: str) -> list[dict]:
 def ablation_rows(rows: list[dict], scene: str, ba: bool, u: bool) -> list[dict]:
     """Table II runs of one (BA, U) cell."""
     return [
-        r for r in ok_rows(rows)
+        r
+        for r in ok_rows(rows)
         if r["scene"] == scene and r["method"] in ("flip", "flip+u") and r["ba"] == ba and r["uncertainty"] == u
     ]
 

@@ -34,12 +34,34 @@ from flipviz.training.config import TrainConfig, preset_config
 
 # BenchConfig fields that are TrainConfig settings, passed to every run as they are.
 RUN_SETTINGS = (
-    "res", "steps", "batch_rays", "field", "n_samples", "grid_res", "mirror_plane", "mirror_pose", "refine_plane", "seed", "device",
-    "preset", "unconfident_plane", "after_drop", "eval_views", "eval_tune_steps",
+    "res",
+    "steps",
+    "batch_rays",
+    "field",
+    "n_samples",
+    "grid_res",
+    "mirror_plane",
+    "mirror_pose",
+    "refine_plane",
+    "seed",
+    "device",
+    "preset",
+    "unconfident_plane",
+    "after_drop",
+    "eval_views",
+    "eval_tune_steps",
 )
 # TrainConfig fields that change where a run writes or what it logs, not what it computes.
 NOT_IN_KEY = (
-    "out", "rrd", "no_rrd", "rerun_serve", "log_every", "images_every", "resume", "checkpoint_every", "eval_on_stop",
+    "out",
+    "rrd",
+    "no_rrd",
+    "rerun_serve",
+    "log_every",
+    "images_every",
+    "resume",
+    "checkpoint_every",
+    "eval_on_stop",
     "plane_file",
 )
 
@@ -67,8 +89,16 @@ class RunSpec:
         where the Flip runs of one configuration share their estimated plane (auto)."""
         shared = planes is not None and self.method in ("flip", "flip+u") and cfg.mirror_plane == "auto"
         return preset_config(
-            cfg.preset, TrainConfig, scene=self.scene, data=Path(self.data) if self.data else None, method=self.method,
-            config=self.config, ba=self.ba, uncertainty=self.uncertainty, out=out, no_rrd=True,
+            cfg.preset,
+            TrainConfig,
+            scene=self.scene,
+            data=Path(self.data) if self.data else None,
+            method=self.method,
+            config=self.config,
+            ba=self.ba,
+            uncertainty=self.uncertainty,
+            out=out,
+            no_rrd=True,
             images_every=0,  # nobody watches: skip the periodic test renders
             plane_file=planes / self.plane_name(cfg) if shared else None,
             **{k: getattr(cfg, k) for k in RUN_SETTINGS},
@@ -77,21 +107,30 @@ class RunSpec:
     def plane_name(self, cfg: BenchConfig) -> str:
         """The estimate's file: what it depends on (the inputs at the run's resolution, the seed, the device)."""
         d = {"data": self.data, "res": cfg.res, "seed": cfg.seed, "device": cfg.device}
-        return f"{self.scene}-c{self.config}-" + hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12] + ".json"
+        return (
+            f"{self.scene}-c{self.config}-"
+            + hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+            + ".json"
+        )
 
     def key(self, cfg: BenchConfig) -> str:
         d = {k: v for k, v in self.train_config(cfg).to_dict().items() if k not in NOT_IN_KEY}
         d = {k: v for k, v in d.items() if k not in LATER_SETTINGS or v != DEFAULTS[k]}  # stored runs keep their keys
-        return f"{self.scene}-{self.method.replace('+', 'u')}-c{self.config}-" + hashlib.sha1(
-            json.dumps(d, sort_keys=True).encode()
-        ).hexdigest()[:12]
+        return (
+            f"{self.scene}-{self.method.replace('+', 'u')}-c{self.config}-"
+            + hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+        )
 
     def labels(self) -> dict:
         """What the tables need, with the flags the method really uses (e.g. B/L has no BA)."""
         flip = self.method in ("flip", "flip+u")
         return {
-            "scene": self.scene, "data": self.data or "", "method": self.method, "config": self.config,
-            "ba": flip and self.ba, "uncertainty": self.method in ("bl+u", "flip+u") and self.uncertainty,
+            "scene": self.scene,
+            "data": self.data or "",
+            "method": self.method,
+            "config": self.config,
+            "ba": flip and self.ba,
+            "uncertainty": self.method in ("bl+u", "flip+u") and self.uncertainty,
             "default_flags": self.ba and self.uncertainty,
         }
 
@@ -108,7 +147,9 @@ def resolve_scene(name: str, data_root: Path | None) -> tuple[str, str | None]:
             )
         p = Path(data_root).expanduser() / name
     if not (p / "transforms_test.json").is_file():
-        raise DatasetError(f"scene {name!r}: no transforms_test.json in {p} (the protocol needs the 200-view test orbit)")
+        raise DatasetError(
+            f"scene {name!r}: no transforms_test.json in {p} (the protocol needs the 200-view test orbit)"
+        )
     return p.name, str(p.resolve())
 
 
@@ -211,13 +252,28 @@ def _run_bench_locked(cfg: BenchConfig, out: Path, specs: list[RunSpec]) -> Path
         _prewarm([s for _, s in todo], cfg.res)
         threads = cfg.cpus_per_run or (max(1, (os.cpu_count() or 1) // cfg.workers) if cfg.executor == "local" else 1)
         tasks = [
-            RunTask(key=k, run_dir=str(out / "runs" / k), train=s.train_config(cfg, out / "runs" / k, out / "planes").to_dict(),
-                    labels=s.labels(), threads=threads, progress=not cfg.quiet,
-                    keep_checkpoint=cfg.keep_checkpoints, twin=str(out / "runs" / t.key(cfg)) if (t := twin_of(s, cfg)) else "")
+            RunTask(
+                key=k,
+                run_dir=str(out / "runs" / k),
+                train=s.train_config(cfg, out / "runs" / k, out / "planes").to_dict(),
+                labels=s.labels(),
+                threads=threads,
+                progress=not cfg.quiet,
+                keep_checkpoint=cfg.keep_checkpoints,
+                twin=str(out / "runs" / t.key(cfg)) if (t := twin_of(s, cfg)) else "",
+            )
             for k, s in todo
         ]
-        bar = tqdm(total=len(specs), initial=len(results), desc="bench", unit="run", position=0,
-                   dynamic_ncols=True, disable=cfg.quiet, file=sys.stderr)
+        bar = tqdm(
+            total=len(specs),
+            initial=len(results),
+            desc="bench",
+            unit="run",
+            position=0,
+            dynamic_ncols=True,
+            disable=cfg.quiet,
+            file=sys.stderr,
+        )
 
         def on_result(res: dict) -> None:
             key = res["key"]
@@ -230,7 +286,11 @@ def _run_bench_locked(cfg: BenchConfig, out: Path, specs: list[RunSpec]) -> Path
             bar.update(1)
             if res.get("status") == "ok":
                 psnr, secs = res.get("psnr") or float("nan"), res.get("train_seconds") or 0.0
-                how = f"taken from {res['reused_from']} (mirrors dropped)" if res.get("reused_from") else f"in {secs:.0f} s"
+                how = (
+                    f"taken from {res['reused_from']} (mirrors dropped)"
+                    if res.get("reused_from")
+                    else f"in {secs:.0f} s"
+                )
                 log(f"done {key}: PSNR {psnr:.2f} {how}", logfile)
             else:
                 log(f"FAILED {key}: {res.get('error', '')}", logfile)
@@ -244,8 +304,11 @@ def _run_bench_locked(cfg: BenchConfig, out: Path, specs: list[RunSpec]) -> Path
         except KeyboardInterrupt:
             bar.close()
             n_ok = sum(r.get("status") == "ok" for r in results.values())
-            log(f"interrupted: {n_ok} of {len(specs)} runs done; run the same command again to resume (finished "
-                "runs are skipped, interrupted ones continue from their checkpoints)", logfile)
+            log(
+                f"interrupted: {n_ok} of {len(specs)} runs done; run the same command again to resume (finished "
+                "runs are skipped, interrupted ones continue from their checkpoints)",
+                logfile,
+            )
             raise
         finally:
             bar.close()

@@ -14,22 +14,65 @@ from flipviz.bench.results import ABLATION, ablation_rows, main_rows, ok_rows, p
 from flipviz.files import write_json, write_text
 
 CSV_FIELDS = (
-    "scene", "method", "config", "ba", "uncertainty", "psnr", "ssim", "lpips", "iou", "psnr_object", "depth_abs",
-    "mirror_angle_deg", "within_30", "plane_confidence", "mirrors_trained", "mirrors_dropped_at", "field_restarted_at", "plane_error_deg", "plane_error_offset",
-    "refined_error_deg", "refined_error_offset", "reused_from", "train_seconds",
-    "wall_seconds", "steps", "res", "seed", "field", "device", "status", "error", "key", "run_id", "data",
-    "flipviz_version", "torch_version", "numpy_version",
+    "scene",
+    "method",
+    "config",
+    "ba",
+    "uncertainty",
+    "psnr",
+    "ssim",
+    "lpips",
+    "iou",
+    "psnr_object",
+    "depth_abs",
+    "mirror_angle_deg",
+    "within_30",
+    "plane_confidence",
+    "mirrors_trained",
+    "mirrors_dropped_at",
+    "field_restarted_at",
+    "plane_error_deg",
+    "plane_error_offset",
+    "refined_error_deg",
+    "refined_error_offset",
+    "reused_from",
+    "train_seconds",
+    "wall_seconds",
+    "steps",
+    "res",
+    "seed",
+    "field",
+    "device",
+    "status",
+    "error",
+    "key",
+    "run_id",
+    "data",
+    "flipviz_version",
+    "torch_version",
+    "numpy_version",
 )
 PLANE_KEYS = {  # results.csv column: the key in metrics.json's "plane" (Trainer.report)
-    "plane_confidence": "confidence", "mirrors_trained": "trained", "mirrors_dropped_at": "dropped_at", "field_restarted_at": "restarted_at",
+    "plane_confidence": "confidence",
+    "mirrors_trained": "trained",
+    "mirrors_dropped_at": "dropped_at",
+    "field_restarted_at": "restarted_at",
     "plane_error_deg": "error_deg",
-    "plane_error_offset": "error_offset", "refined_error_deg": "refined_error_deg", "refined_error_offset": "refined_error_offset",
+    "plane_error_offset": "error_offset",
+    "refined_error_deg": "refined_error_deg",
+    "refined_error_offset": "refined_error_offset",
 }
 METRICS = ("psnr", "ssim", "lpips")
 STRUCTURE = ("iou", "psnr_object", "depth_abs")  # training/evaluate.py: what the object itself scores
 DIGITS = {"psnr": 2, "ssim": 3, "lpips": 3, "iou": 3, "psnr_object": 2, "depth_abs": 3}
-LABELS = {"psnr": "PSNR", "ssim": "SSIM", "lpips": "LPIPS", "iou": "silhouette IoU", "psnr_object": "PSNR in the object",
-          "depth_abs": "depth error"}
+LABELS = {
+    "psnr": "PSNR",
+    "ssim": "SSIM",
+    "lpips": "LPIPS",
+    "iou": "silhouette IoU",
+    "psnr_object": "PSNR in the object",
+    "depth_abs": "depth error",
+}
 
 
 def metric(r: dict, key: str):
@@ -49,8 +92,15 @@ def flat_row(r: dict) -> dict:
     """One results.csv row of a run's result."""
     tc, v = r.get("train_config", {}), r.get("versions", {})
     row = {k: metric(r, k) for k in CSV_FIELDS}
-    row.update(res=tc.get("res"), seed=tc.get("seed"), field=tc.get("field"), device=tc.get("device"),
-               flipviz_version=v.get("flipviz"), torch_version=v.get("torch"), numpy_version=v.get("numpy"))
+    row.update(
+        res=tc.get("res"),
+        seed=tc.get("seed"),
+        field=tc.get("field"),
+        device=tc.get("device"),
+        flipviz_version=v.get("flipviz"),
+        torch_version=v.get("torch"),
+        numpy_version=v.get("numpy"),
+    )
     if row["lpips"] is None and r.get("status") == "ok":
         row["lpips"] = "unavailable"
     return row
@@ -101,7 +151,9 @@ def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
         prow = paper_scene(rows, scene)
         label = scene + (f" ({prow})" if prow and prow.lower() != scene.lower() else "")
         blank = {"psnr": metric_blank(rows, scene, "blank_psnr"), "ssim": metric_blank(rows, scene, "blank_ssim")}
-        lines.append(f"| {label} | white image | " + " | ".join(_fmt(blank.get(k), k) if k in blank else "" for k in keys) + " |")
+        lines.append(
+            f"| {label} | white image | " + " | ".join(_fmt(blank.get(k), k) if k in blank else "" for k in keys) + " |"
+        )
         for m in methods:
             rs = main_rows(rows, scene, m)
             cells = [label, METHOD_LABELS[m] + (f" †{len(rs)}/{n_configs}" if rs and len(rs) < n_configs else "")]
@@ -134,7 +186,9 @@ def table3(rows: list[dict], methods: list[str], n_configs: int) -> str:
 def metric_blank(rows: list[dict], scene: str, key: str) -> float | None:
     """An all-white image's score (blank_psnr, blank_ssim) on the scene's unobserved views, mean over its
     configurations (each run scores it on its own test views: the same for every method of a configuration)."""
-    per_config = {r["config"]: metric(r, key) for r in ok_rows(rows) if r["scene"] == scene and metric(r, key) is not None}
+    per_config = {
+        r["config"]: metric(r, key) for r in ok_rows(rows) if r["scene"] == scene and metric(r, key) is not None
+    }
     return sum(per_config.values()) / len(per_config) if per_config else None
 
 
@@ -177,8 +231,14 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
     both = "bl" in methods and "flip+u" in methods
     head = ["Scene", "Config"] + [METHOD_LABELS[m] for m in methods]
     if both:
-        head += ["gain Flip+U - B/L", "gain in the object", "angle to nearest mirror (deg)", "tests within 30 deg",
-                 "plane confidence (Flip+U)", "plane error before -> after training (Flip+U)"]
+        head += [
+            "gain Flip+U - B/L",
+            "gain in the object",
+            "angle to nearest mirror (deg)",
+            "tests within 30 deg",
+            "plane confidence (Flip+U)",
+            "plane error before -> after training (Flip+U)",
+        ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for scene in scenes(rows):
         for n in sorted({r["config"] for r in rows if r["scene"] == scene}):
@@ -190,7 +250,9 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
                 g, go = gain(rows, scene, n), gain(rows, scene, n, "psnr_object")
                 cov = coverage_run(rows, scene, n)
                 cells += [f"{g:+.2f}" if g is not None else "-", f"{go:+.2f}" if go is not None else "-"]
-                cells += [f"{metric(cov, 'mirror_angle_deg'):.1f}", f"{metric(cov, 'within_30'):.0%}"] if cov else ["-", "-"]
+                cells += (
+                    [f"{metric(cov, 'mirror_angle_deg'):.1f}", f"{metric(cov, 'within_30'):.0%}"] if cov else ["-", "-"]
+                )
                 fu = next((r for r in main_rows(rows, scene, "flip+u") if r["config"] == n), None)
                 cells += [plane_cell(fu), plane_error_cell(fu)]
             lines.append("| " + " | ".join(cells) + " |")
@@ -200,8 +262,12 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
 def coverage_run(rows: list[dict], scene: str, config: int) -> dict | None:
     """The run whose coverage a configuration reports: its Flip+U run's (the mirrors it was given: with
     --mirror-plane auto, B/L's would-be mirrors use another plane), else any run's."""
-    have = [r for r in ok_rows(rows) if r["scene"] == scene and r["config"] == config and metric(r, "within_30") is not None]
-    return next((r for r in have if r["method"] == "flip+u" and r.get("default_flags", True)), have[0] if have else None)
+    have = [
+        r for r in ok_rows(rows) if r["scene"] == scene and r["config"] == config and metric(r, "within_30") is not None
+    ]
+    return next(
+        (r for r in have if r["method"] == "flip+u" and r.get("default_flags", True)), have[0] if have else None
+    )
 
 
 def plane_cell(r: dict | None) -> str:
@@ -212,7 +278,13 @@ def plane_cell(r: dict | None) -> str:
     if conf is None:
         return "-"
     at, again = metric(r, "mirrors_dropped_at"), ", restarted" if metric(r, "field_restarted_at") is not None else ""
-    dropped = f" (dropped at {at}{again})" if at is not None else " (dropped)" if metric(r, "mirrors_trained") is False else ""
+    dropped = (
+        f" (dropped at {at}{again})"
+        if at is not None
+        else " (dropped)"
+        if metric(r, "mirrors_trained") is False
+        else ""
+    )
     return f"{conf:.3f}{dropped}"  # 3 digits: 0.248 is below 0.25
 
 
@@ -258,7 +330,8 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
         "# flipviz bench: Just Flip, paper Table III" + (" and Table II" if cfg.ablation else ""),
         "",
         f"Settings: preset `{cfg.preset}`, field `{cfg.field}`"
-        + (f" (grid {cfg.grid_res})" if cfg.grid_res else "") + f", {cfg.n_samples} samples/ray"
+        + (f" (grid {cfg.grid_res})" if cfg.grid_res else "")
+        + f", {cfg.n_samples} samples/ray"
         + f", {cfg.res} px, {cfg.steps} steps of {cfg.batch_rays} rays, "
         f"seed {cfg.seed}, device `{cfg.device}`, "
         f"configurations {', '.join(map(str, configs))}. {n_ok}/{len(rows)} runs ok. "
@@ -280,14 +353,21 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
     ]
     if cfg.ablation:
         parts += ["## Table II: ablation of Flip+U (mean over scenes and configurations)", "", table2(rows), ""]
-    parts += ["## PSNR per configuration, and why a configuration gains or loses", "",
-              "Coverage: the angle from each unobserved view to the nearest mirrored camera (about the object's centre), "
-              "mean over the 8 views, and the share of views within 30 degrees of one.", "",
-              per_config_table(rows, methods), ""]
+    parts += [
+        "## PSNR per configuration, and why a configuration gains or loses",
+        "",
+        "Coverage: the angle from each unobserved view to the nearest mirrored camera (about the object's centre), "
+        "mean over the 8 views, and the share of views within 30 degrees of one.",
+        "",
+        per_config_table(rows, methods),
+        "",
+    ]
     parts += ["## Mean training time per run (s)", "", time_table(rows, methods), ""]
     if failed:
         parts += ["## Failed runs", ""]
-        parts += [f"- `{r['key']}` ({r['scene']} {r['method']} cfg {r['config']}): {r.get('error', '')}" for r in failed]
+        parts += [
+            f"- `{r['key']}` ({r['scene']} {r['method']} cfg {r['config']}): {r.get('error', '')}" for r in failed
+        ]
         parts.append("")
     return "\n".join(parts)
 

@@ -62,8 +62,10 @@ def _progress_observer(task: RunTask):
     from flipviz.training.progress import ProgressObserver
 
     lab = task.labels
-    label = lab["method"] if lab.get("default_flags", True) else (
-        f"{lab['method']} (ba={int(lab['ba'])},u={int(lab['uncertainty'])})"
+    label = (
+        lab["method"]
+        if lab.get("default_flags", True)
+        else (f"{lab['method']} (ba={int(lab['ba'])},u={int(lab['uncertainty'])})")
     )
     if _inside_ray_worker():
         from ray.experimental.tqdm_ray import tqdm as ray_tqdm
@@ -102,9 +104,20 @@ def execute_run(task: RunTask | dict) -> dict:
     host = os.uname().nodename
     write_json(run_dir / STARTED_FILE, {"run_id": run_id, "started": started, "pid": os.getpid(), "host": host})
     result = {
-        "key": task.key, "run_id": run_id, **task.labels, "status": "failed", "error": "",
-        "psnr": None, "ssim": None, "lpips": None, "train_seconds": None, "steps": None,
-        "started": started, "finished": None, "threads": task.threads, "host": host,
+        "key": task.key,
+        "run_id": run_id,
+        **task.labels,
+        "status": "failed",
+        "error": "",
+        "psnr": None,
+        "ssim": None,
+        "lpips": None,
+        "train_seconds": None,
+        "steps": None,
+        "started": started,
+        "finished": None,
+        "threads": task.threads,
+        "host": host,
         "train_config": task.train,
     }
     try:
@@ -130,10 +143,13 @@ def execute_run(task: RunTask | dict) -> dict:
         result.update(
             status="ok" if ok else "failed",
             error="" if ok else f"run ended with status {status!r}: {metrics.get('message', '')}",
-            psnr=_num(metrics.get("psnr")), ssim=_num(metrics.get("ssim")),
+            psnr=_num(metrics.get("psnr")),
+            ssim=_num(metrics.get("ssim")),
             lpips=lpips if isinstance(lpips, str) else _num(lpips),
-            train_seconds=_num(metrics.get("train_seconds")), steps=metrics.get("steps"),
-            metrics={k: v for k, v in metrics.items() if k != "per_view"}, per_view=metrics.get("per_view", []),
+            train_seconds=_num(metrics.get("train_seconds")),
+            steps=metrics.get("steps"),
+            metrics={k: v for k, v in metrics.items() if k != "per_view"},
+            per_view=metrics.get("per_view", []),
         )
     except BaseException as e:  # a crashed run is recorded, never fatal for the bench
         if isinstance(e, KeyboardInterrupt):
@@ -169,8 +185,13 @@ def _reuse_twin(trainer, twin_dir: Path, twin: dict) -> dict:
     from flipviz.training import artifacts
 
     trainer.close()
-    m = {**twin["metrics"], **trainer.report(), "per_view": twin.get("per_view", []), "reused_from": twin["key"],
-         "run_dir": str(trainer.run_dir)}
+    m = {
+        **twin["metrics"],
+        **trainer.report(),
+        "per_view": twin.get("per_view", []),
+        "reused_from": twin["key"],
+        "run_dir": str(trainer.run_dir),
+    }
     shutil.copytree(twin_dir / "test_renders", trainer.run_dir / "test_renders", dirs_exist_ok=True)
     artifacts.write_metrics(trainer.run_dir, m)
     return m
@@ -198,8 +219,22 @@ def _collect_files(run_dir: Path) -> dict[str, bytes]:
 def died_result(task: RunTask, error: str = "worker process died (killed or out of memory)") -> dict:
     """The result of a run whose process died under it, written to its folder; `died`: the bench's next
     start resumes it from its last checkpoint (a run that failed on its own starts over)."""
-    res = {"key": task.key, "run_id": uuid.uuid4().hex, **task.labels, "status": "failed", "error": error, "died": True,
-           "psnr": None, "ssim": None, "lpips": None, "train_seconds": None, "steps": None, "started": None,
-           "finished": time.time(), "train_config": task.train, "versions": {}}
+    res = {
+        "key": task.key,
+        "run_id": uuid.uuid4().hex,
+        **task.labels,
+        "status": "failed",
+        "error": error,
+        "died": True,
+        "psnr": None,
+        "ssim": None,
+        "lpips": None,
+        "train_seconds": None,
+        "steps": None,
+        "started": None,
+        "finished": time.time(),
+        "train_config": task.train,
+        "versions": {},
+    }
     write_json(Path(task.run_dir) / RESULT_FILE, res)
     return res

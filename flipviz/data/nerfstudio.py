@@ -47,7 +47,7 @@ def _ply_points(path: Path) -> np.ndarray:
 
     try:
         return np.asarray(trimesh.load(path, process=False).vertices, dtype=np.float64)
-    except Exception as e:  # noqa: BLE001 - any unreadable file is one line
+    except Exception as e:
         raise DatasetError(f"cannot read the sparse points {path} ({type(e).__name__})") from None
 
 

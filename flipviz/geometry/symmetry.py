@@ -195,7 +195,7 @@ def search_plane(vol: SymmetryVolume, up: np.ndarray, up_known: bool = True, see
     def one(x: np.ndarray) -> tuple[float, float, float]:
         """agreement, evidence, score of the plane x = (theta, phi, offset)."""
         n = torch.as_tensor(_normal(x[0], x[1])[None], dtype=torch.float32)
-        return tuple(float(t) for t in scorer(n, torch.tensor([x[2]], dtype=torch.float32)))  # type: ignore[return-value]
+        return tuple(float(t) for t in scorer(n, torch.tensor([x[2]], dtype=torch.float32)))
 
     best_x, best = None, np.inf
     for k in torch.topk(score, 3).indices.tolist():

@@ -57,7 +57,7 @@ def fit(
         loss = mse(out, bank.rgb[idx], certain, step) + model.regulariser()
         opt.zero_grad(set_to_none=True)
         if popt is not None:
-            refiner.adjust_lr(popt, step)  # type: ignore[union-attr]
+            refiner.adjust_lr(popt, step)
             popt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

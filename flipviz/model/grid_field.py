@@ -94,7 +94,7 @@ class GridConfig:
 def axis_resolution(bbox: np.ndarray, res: int) -> tuple[int, int, int]:
     """Voxels per axis (x, y, z): `res` along the longest side, proportionally fewer elsewhere."""
     ext = np.asarray(bbox[1], dtype=np.float64) - np.asarray(bbox[0], dtype=np.float64)
-    return tuple(max(8, int(round(res * e / ext.max()))) for e in ext)  # type: ignore[return-value]
+    return tuple(max(8, int(round(res * e / ext.max()))) for e in ext)
 
 
 def dilate(mask: Tensor, r: int) -> Tensor:
@@ -289,7 +289,7 @@ class GridField(BoxField):
         self.occ = torch.ones(*shape_zyx, dtype=torch.bool, device=dev)
         self._occ_idx = None
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[override]
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         for name in ("density_grid", "feat_grid"):  # runs saved before the grids were channels-last
             v = state_dict.get(prefix + name)
             if v is not None and v.dim() == 5:  # (C, 1, Z, Y, X) -> (Z, Y, X, C)
@@ -349,7 +349,7 @@ class GridField(BoxField):
     @property
     def resolution(self) -> tuple[int, int, int]:
         """Current grid shape (Z, Y, X)."""
-        return tuple(self.density_grid.shape[:3])  # type: ignore[return-value]
+        return tuple(self.density_grid.shape[:3])
 
     def lattice_shape(self) -> tuple[int, int, int]:
         """(Z, Y, X) of the lattice a point cloud of this field is sampled on: its own voxels."""

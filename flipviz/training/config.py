@@ -401,13 +401,13 @@ C = TypeVar("C")
 
 def settings_of(cfg: object) -> dict[str, object]:
     """A config's flat settings: a TrainConfig's (and its subclass's own fields), or a flat dataclass's."""
-    own = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in GROUPS}  # type: ignore[arg-type]
+    own = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in GROUPS}
     return own | cfg.settings() if isinstance(cfg, TrainConfig) else own
 
 
 def with_settings(cfg: C, **settings: object) -> C:
     """`cfg` with flat settings changed: a TrainConfig's by flag name, a flat dataclass's by field name."""
-    return cfg.with_settings(**settings) if isinstance(cfg, TrainConfig) else replace(cfg, **settings)  # type: ignore[type-var]
+    return cfg.with_settings(**settings) if isinstance(cfg, TrainConfig) else replace(cfg, **settings)
 
 
 def preset_config(name: str, cls: type[C] = TrainConfig, **settings: object) -> C:
@@ -422,9 +422,9 @@ def preset_config(name: str, cls: type[C] = TrainConfig, **settings: object) -> 
 def with_preset(cfg: C, preset: str) -> C:
     """`cfg` in another preset: each setting still at the old preset's value takes the new preset's; a
     setting you changed from it stays (as on the command line)."""
-    if preset == cfg.preset:  # type: ignore[attr-defined]
+    if preset == cfg.preset:
         return cfg
-    old, new = (settings_of(preset_config(p, type(cfg))) for p in (cfg.preset, preset))  # type: ignore[attr-defined]
+    old, new = (settings_of(preset_config(p, type(cfg))) for p in (cfg.preset, preset))
     mine = settings_of(cfg)
     names = {k for p in PRESETS.values() for k in p if k in mine}
     return with_settings(cfg, **{k: new[k] for k in names if mine[k] == old[k]}, preset=preset)

@@ -94,7 +94,7 @@ def _lpips_weight_paths() -> tuple[Path | None, Path | None, str]:
     alex = ckpt / ALEXNET_FILE
     lin_candidates = [ckpt / LPIPS_FILE]
     try:  # the `lpips` package ships the linear weights, if it happens to be installed
-        import lpips  # type: ignore
+        import lpips
 
         lin_candidates.append(Path(lpips.__file__).parent / "weights" / "v0.1" / LPIPS_FILE)
     except Exception:

@@ -292,7 +292,7 @@ class Flip:
         if self.dropped_at is not None:
             return False  # nothing mirrored is trained: the poses and the plane stay where they were
         if self.opt_pose is not None and step >= self.ba_start:
-            self.refiner.adjust_lr(self.opt_pose, step - self.start)  # type: ignore[union-attr]
+            self.refiner.adjust_lr(self.opt_pose, step - self.start)
             self.opt_pose.step()
         if self.opt_plane is not None and step >= self.plane_start:
             decay_lr(self.opt_plane, step - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)

@@ -55,8 +55,8 @@ def thread_safe_pushes() -> None:
         init(self, *args, **kwargs)
         self.message_event = LoopEvent(self.event_loop)
 
-    with_loop_event._flipviz_loop_event = True  # type: ignore[attr-defined]
-    AsyncMessageBuffer.__init__ = with_loop_event  # type: ignore[method-assign]
+    with_loop_event._flipviz_loop_event = True
+    AsyncMessageBuffer.__init__ = with_loop_event
 
 
 def on_gui_thread(server: viser.ViserServer, fn: Callable[[], T], timeout: float | None = None) -> T:
@@ -69,7 +69,7 @@ def on_gui_thread(server: viser.ViserServer, fn: Callable[[], T], timeout: float
     def run() -> None:
         try:
             done.set_result(fn())
-        except BaseException as e:  # noqa: BLE001 - handed back to the caller's thread
+        except BaseException as e:
             done.set_exception(e)
 
     loop.call_soon_threadsafe(run)

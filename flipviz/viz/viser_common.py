@@ -110,7 +110,7 @@ def visualize_output(out: dict, which: str, view: ScalarView = ScalarView()) -> 
         return np.full((*shape, 3), 128, np.uint8)
     if which == "RGB":
         return to_uint8(x)
-    lo, hi, _ = output_range(out, which, view)  # type: ignore[misc]
+    lo, hi, _ = output_range(out, which, view)
     if which == "beta^2":
         return beta2_over_render(out, lo, hi)
     return palette.colormap(np.asarray(x).reshape(x.shape[:2]), lo, hi)

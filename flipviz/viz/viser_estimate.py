@@ -104,7 +104,7 @@ class PlaneEstimatePanel:
             clock.start()
             try:
                 est, error = self.run.estimate_plane(), None
-            except Exception as e:  # noqa: BLE001 - shown, never fatal
+            except Exception as e:
                 est, error = None, e
             finally:
                 done.set()

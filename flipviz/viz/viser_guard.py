@@ -26,40 +26,40 @@ def bounded(value: object, lo: float, hi: float, fallback: float) -> float:
 
 def guard_number(handle: H, lo: float, hi: float) -> H:
     """A slider or number input whose value the server keeps in [lo, hi] (its initial value for junk)."""
-    initial = handle.value  # type: ignore[attr-defined]
+    initial = handle.value
     kind = type(initial)
 
-    @handle.on_update  # type: ignore[attr-defined]
+    @handle.on_update
     async def _(_) -> None:
-        v = handle.value  # type: ignore[attr-defined]
+        v = handle.value
         fixed = kind(bounded(v, lo, hi, initial))
         if fixed != v or type(v) is not kind:
-            handle.value = fixed  # type: ignore[attr-defined]
+            handle.value = fixed
 
     return handle
 
 
 def guard_choice(handle: H, options: Sequence[str]) -> H:
     """A dropdown whose value the server keeps among `options` (the fixed ones it was built with)."""
-    allowed, initial = tuple(options), handle.value  # type: ignore[attr-defined]
+    allowed, initial = tuple(options), handle.value
 
-    @handle.on_update  # type: ignore[attr-defined]
+    @handle.on_update
     async def _(_) -> None:
-        if handle.value not in allowed:  # type: ignore[attr-defined]
-            handle.value = initial  # type: ignore[attr-defined]
+        if handle.value not in allowed:
+            handle.value = initial
 
     return handle
 
 
 def guard_vector(handle: H, limit: float) -> H:
     """A vector input whose components the server keeps finite and within +-limit."""
-    initial = tuple(handle.value)  # type: ignore[attr-defined]
+    initial = tuple(handle.value)
 
-    @handle.on_update  # type: ignore[attr-defined]
+    @handle.on_update
     async def _(_) -> None:
-        v = tuple(handle.value)  # type: ignore[attr-defined]
+        v = tuple(handle.value)
         fixed = tuple(bounded(x, -limit, limit, i) for x, i in zip(v, initial)) if len(v) == len(initial) else initial
         if fixed != v:
-            handle.value = fixed  # type: ignore[attr-defined]
+            handle.value = fixed
 
     return handle
