@@ -22,7 +22,7 @@ def keep_freed_memory() -> None:
     """Large allocations come from the heap and freed memory stays there (glibc only; else nothing)."""
     global _applied
     if _applied or not sys.platform.startswith("linux") or os.environ.get("FLIPVIZ_GLIBC_MALLOC") == "default":
-        return  # FLIPVIZ_GLIBC_MALLOC=default keeps glibc's settings (benchmarks/bench_run_time.py compares)
+        return  # FLIPVIZ_GLIBC_MALLOC=default keeps glibc's settings (studies/bench_run_time.py compares)
     _applied = True
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")

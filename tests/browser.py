@@ -1,5 +1,5 @@
 """A real headless Chromium (Debian's chromium + chromium-driver) driven by selenium, for the
-browser tests, the screenshots in assets/ and benchmarks/bench_viewer.py.
+browser tests, the screenshots in assets/ and studies/bench_viewer.py.
 
 Software WebGL (SwiftShader), a fixed window size, and free ports for the driver and DevTools.
 `chromium_available()` says whether the machine has both binaries.

@@ -1,6 +1,6 @@
 """The training objective of Sec. IV-C and the beta^2 it learns from (model/objective.py, renderer.py).
 
-Each test names the behaviour it guards; `benchmarks/check_mutations.py` breaks each on purpose
+Each test names the behaviour it guards; `studies/check_mutations.py` breaks each on purpose
 and checks that this suite fails.
 """
 

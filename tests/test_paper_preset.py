@@ -1,4 +1,4 @@
-"""`--preset paper` (the paper's vanilla NeRF setting) and benchmarks/gpu_paper.sh, checked on the CPU
+"""`--preset paper` (the paper's vanilla NeRF setting) and studies/gpu_paper.sh, checked on the CPU
 with a tiny step count (on CUDA where one is present: see the README)."""
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def test_gpu_paper_script_runs_on_the_cpu_with_a_tiny_step_count(tmp_path):
         PYTHONPATH=str(ROOT),
     )
     r = subprocess.run(
-        ["bash", str(ROOT / "benchmarks/gpu_paper.sh")], env=env, capture_output=True, text=True, timeout=600
+        ["bash", str(ROOT / "studies/gpu_paper.sh")], env=env, capture_output=True, text=True, timeout=600
     )
     assert r.returncode == 0, r.stdout + r.stderr
     summary = json.loads((tmp_path / "out/summary.json").read_text())

@@ -1,4 +1,4 @@
-"""A minimal headless viser client speaking the real websocket protocol (for tests and benchmarks).
+"""A minimal headless viser client speaking the real websocket protocol (for tests and studies).
 
 Wire format (viser 1.1.1, `viser/infra/_infra.py`): the client sends one msgpack dict per
 websocket message, {"type": <message class name>, **fields}. The server sends frames

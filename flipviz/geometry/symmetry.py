@@ -46,7 +46,7 @@ OFFSET_RANGE = 0.25
 MAX_SURFACE = 4000  # surface points used (a random subset of larger sets)
 # Confidence at or above which a plane is trusted. Tuned on the untouched built-ins, configurations
 # 1 and 4 (plane_estimate's fit): chair and truck gave 0.27-0.38, mug and lamp 0.09-0.24. The
-# turned scenes, the other configurations and lego are measured by benchmarks/bench_plane.py.
+# turned scenes, the other configurations and lego are measured by studies/bench_plane.py.
 CONFIDENT = 0.25
 
 

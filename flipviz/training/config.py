@@ -177,7 +177,7 @@ class FlipConfig:
     """Initial mirrored poses: reflect (each camera reflected whole through the plane: exact for an object
     symmetric about it, on any trajectory) or lookat (the paper: reflect the centre, back onto the sphere,
     look at its centre; the same when the plane holds the sphere centre and the cameras look at it).
-    Measured on the turned chair, configuration 1, true plane: 22.76 vs 18.51 dB (benchmarks/bench_plane.py)."""
+    Measured on the turned chair, configuration 1, true plane: 22.76 vs 18.51 dB (studies/bench_plane.py)."""
     plane_file: Path | None = None
     """With --mirror-plane auto: read the estimate from this plane.json when it exists (another run's on
     the same inputs, e.g. Flip beside Flip+U), else estimate it and write it there as well."""
@@ -199,7 +199,7 @@ class FlipConfig:
     5 and 6: 24.07 / 23.72, 23.96 / 23.72), 23.73 / 23.45 on the turned chair, 21.92 / 21.69 on the
     truck and 28.38 / 28.07 on the lamp (the mug's mirrors are dropped: the same run). With the true
     plane from step 0, as a diagnostic only, the chair gave 24.41 / 24.05 / 23.97: restart closes the
-    gap the late join left (benchmarks/bench_join_lr.py, docs/results/join_lr)."""
+    gap the late join left (studies/bench_join_lr.py, docs/results/join_lr)."""
     unconfident_plane: Literal["drop", "use"] = "use"
     """With --mirror-plane auto, when the estimate is not confident (geometry/symmetry.py: CONFIDENT): use
     (train with its mirrors, as with a confident one: the agreement gate, --disagreement-limit, drops them
@@ -209,7 +209,7 @@ class FlipConfig:
     """Flip methods: once the NLL is on, the mirrored views are dropped (training goes on with the inputs)
     when their squared error on the object exceeds this many times the inputs' (training/flip.py:
     Agreement); inf: never. Tuned on the training batches of the built-ins chair, truck, mug and lamp,
-    configurations 1 and 4 (benchmarks/bench_agreement.py, docs/results/agreement/live), with the mirrors
+    configurations 1 and 4 (studies/bench_agreement.py, docs/results/agreement/live), with the mirrors
     joining after --estimate-after 150 of 600 steps: from the NLL's start on, the symmetric chair and truck with a plane
     within 1° of theirs never went above 2.41; the mug (no mirror symmetry) and the truck's configuration 4
     (its estimate 88° off) were at 4.37 or more. 3.25 is the geometric mean of the two. With the mirrors

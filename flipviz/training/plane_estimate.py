@@ -11,7 +11,7 @@
 Nothing here looks at the test views or at the scene's true plane. The settings below (and the
 scoring constants of geometry/symmetry.py) were tuned on the untouched built-in scenes (chair,
 truck, mug, lamp; configurations 1 and 4) and measured on the turned ones, the other
-configurations and lego by benchmarks/bench_plane.py. The fit (500 steps of 512 rays, 24 samples)
+configurations and lego by studies/bench_plane.py. The fit (500 steps of 512 rays, 24 samples)
 took 8-12 s on the 2-core machine; 200 steps of 1024 rays left chair and lamp indistinguishable.
 From the run's own field, steps 150 of 600 of the chair's configuration 1 (5 seeds): the search
 took 1.5-2.8 s, and the planes were 0.27-1.14° off (the separate fit's: 0.29-1.36°, 10-12 s).

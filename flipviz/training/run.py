@@ -1,4 +1,4 @@
-"""One training run, blocking: how the CLI, the bench and the benchmarks make a Trainer and train it."""
+"""One training run, blocking: how the CLI, the bench and the studies make a Trainer and train it."""
 
 from __future__ import annotations
 

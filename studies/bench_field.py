@@ -1,6 +1,6 @@
 """Field benchmark (a script, not a test): speed and held-out PSNR of the grid and NeRF fields.
 
-    python benchmarks/bench_field.py --seconds 120 --fields grid nerf-small nerf
+    python studies/bench_field.py --seconds 120 --fields grid nerf-small nerf
 
 Scene: the built-in chair, its 16 ring views at --res px; trains on 12, tests on the 4 views
 at ring positions 1, 5, 9, 13. Prints seconds per step, rays/s, full-render time at 100 and

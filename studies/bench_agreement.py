@@ -1,7 +1,7 @@
 """Do the mirrors agree with the inputs? (a script) The training-batch disagreement of Flip+U runs
 that keep their mirrors whatever the estimate's confidence (`--unconfident-plane use`), step by step.
 
-    python benchmarks/bench_agreement.py [--scenes chair,truck,mug,lamp] [--configs 1,4]
+    python studies/bench_agreement.py [--scenes chair,truck,mug,lamp] [--configs 1,4]
 
 disagreement = the mirrored rays' squared error over the inputs' on the object (training/flip.py:
 Agreement). Only training batches are read to draw the curves; the test PSNR is printed beside, to

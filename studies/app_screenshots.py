@@ -1,6 +1,6 @@
 """The README's screenshots of the app, from a real headless Chromium (see tests/browser.py).
 
-    python benchmarks/app_screenshots.py --out assets
+    python studies/app_screenshots.py --out assets
 
 1. app.png: the chair training (Flip+U), your view rendered at the canvas size;
 2. app_snapped.png: snapped to an unobserved test view, ground truth and render blended half-half;
@@ -36,7 +36,7 @@ from pathlib import Path
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "studies")]
 from browser import chromium, screenshot_png, wait_until  # noqa: E402
 from test_browser import button, canvas_element, checkbox, choose, tab  # noqa: E402
 

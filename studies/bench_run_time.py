@@ -1,6 +1,6 @@
 """Where one bench run's wall time goes, and what glibc's allocator costs (a script, not a test).
 
-    python benchmarks/bench_run_time.py [--scene lego] [--method flip+u] [--config 2] [--threads 1]
+    python studies/bench_run_time.py [--scene lego] [--method flip+u] [--config 2] [--threads 1]
 
 Each measurement is a fresh process, as a bench worker is, with one torch thread (the bench runs two
 at once on the 2-core machine): importing flipviz and torch, loading the scene, building the run
@@ -119,7 +119,7 @@ def main(args: Args) -> None:
     lines = [
         "# Where a bench run's wall time goes",
         "",
-        f"`python benchmarks/bench_run_time.py --scene {args.scene} --method {args.method} --config {args.config}`: "
+        f"`python studies/bench_run_time.py --scene {args.scene} --method {args.method} --config {args.config}`: "
         f"{args.res} px, {args.steps} steps, {args.threads} torch thread(s), "
         "a fresh process each, idle 2-core machine.",
         "",

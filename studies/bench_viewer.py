@@ -1,6 +1,6 @@
 """Viewer benchmark: how fast a user sees the model in the browser, on this machine.
 
-    python benchmarks/bench_viewer.py [--out viewer.json]
+    python studies/bench_viewer.py [--out viewer.json]
 
 Starts the real app (chair, 100 px, Flip+U, its default 3000 steps) in-process and, after
 1000 steps (the grid at its final resolution), measures:
@@ -11,7 +11,7 @@ Starts the real app (chair, 100 px, Flip+U, its default 3000 steps) in-process a
 3. frames per second of headless Chromium (software WebGL) orbiting the splat preview, and the
    server's render jobs meanwhile (target: none), when Chromium is installed;
 4. training steps/s with 1 and 4 clients orbiting, against the solo phases around them
-   (target >= 80%), with benchmarks/bench_app_clients.py.
+   (target >= 80%), with studies/bench_app_clients.py.
 Timings depend on the machine's load: run it on an idle machine.
 """
 
@@ -32,7 +32,7 @@ import numpy as np
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "studies")]
 from viser_client import ViserTestClient  # noqa: E402
 
 from flipviz.viz.viser_app import App, AppConfig  # noqa: E402

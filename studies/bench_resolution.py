@@ -1,6 +1,6 @@
 """Which resolution should a run train at? PSNR and SSIM at 200 px against wall time (a script).
 
-    python benchmarks/bench_resolution.py [--scenes chair lego] [--methods bl upper] [--workers 2]
+    python studies/bench_resolution.py [--scenes chair lego] [--methods bl upper] [--workers 2]
 
 Each setting trains B/L and Upper on configuration 1 (600 steps of 1024 rays, 64 samples, the
 defaults otherwise) and is scored at 200 px on **held-out views that the protocol never uses**:
@@ -190,7 +190,7 @@ def main(args: Args) -> None:
     lines = [
         "# Training resolution: held-out quality at 200 px against time",
         "",
-        f"`python benchmarks/bench_resolution.py --steps {args.steps} --scenes {' '.join(args.scenes)}`: "
+        f"`python studies/bench_resolution.py --steps {args.steps} --scenes {' '.join(args.scenes)}`: "
         f"configuration {args.config}, {args.steps} steps of 1024 rays, "
         f"64 samples, {args.workers} runs at a time with one thread each, on the 2-core machine. Held-out scores at "
         f"{EVAL_RES} px: lego, 20 views of its orbit's second turn; the built-ins, the 16 orbit views three indices "

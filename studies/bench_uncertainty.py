@@ -1,6 +1,6 @@
 """Where beta^2 rises, where it does not, and what protects an asymmetric object (a script, not a test).
 
-    python benchmarks/bench_uncertainty.py [--scenes mug,lamp] [--configs 1,4] [--workers 2]
+    python studies/bench_uncertainty.py [--scenes mug,lamp] [--configs 1,4] [--workers 2]
 
 1. Flip+U with a plane forced on the asymmetric built-ins (the paper's x = 0: the mug's handle is on
    +x, so its mirror puts a ghost handle on -x). Per mirrored training pixel, with the ray caster's
@@ -168,7 +168,7 @@ def main(args: Args) -> None:
     lines = [
         "# Where beta^2 rises, and what protects an asymmetric object",
         "",
-        f"`python benchmarks/bench_uncertainty.py --scenes {args.scenes} --configs {args.configs}`: {args.res} px, "
+        f"`python studies/bench_uncertainty.py --scenes {args.scenes} --configs {args.configs}`: {args.res} px, "
         f"{args.steps} steps, grid field, 64 samples, one thread per run. Flip+U with the plane `{args.plane}` "
         "forced (`--unconfident-plane use`) unless a row says otherwise.",
         "",

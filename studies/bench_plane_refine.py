@@ -7,7 +7,7 @@ issue's table: the gain Flip+U - B/L per scene, configurations 1 and 5 of the ch
 plane's error against the scene's true plane before and after training (lego: against x = 0, its
 approximate plane).
 
-    python benchmarks/bench_plane_refine.py [--scenes chair,chair-turned,mug,lamp] [--lego]
+    python studies/bench_plane_refine.py [--scenes chair,chair-turned,mug,lamp] [--lego]
         [--out docs/results/plane_refine]
 
 Each bench keeps its own folder under --out (resumable: run the same command again). Nothing here
@@ -95,7 +95,7 @@ def main(a: Args) -> None:
     table = summary(rows(on), rows(off), scenes)
     write_text(
         a.out / "README.md",
-        "# The plane refined during training\n\n`python benchmarks/bench_plane_refine.py"
+        "# The plane refined during training\n\n`python studies/bench_plane_refine.py"
         f"{' --lego' if a.lego else ''}`: B/L and Flip+U at the defaults, 100 px, 600 steps, configurations "
         f"{a.configs}; Flip+U with the plane refined (`refined/`) and fixed (`fixed/`).\n\n{table}\n",
     )

@@ -9,7 +9,7 @@ as good as knowing it?
    the paper's `lookat` initial pose against `reflect` (the default).
    Targets: `auto` within 0.3 dB of `scene`; `auto` in <= 15 s.
 
-    python benchmarks/bench_plane.py [--configs 1,2,3] [--skip-training | --skip-estimates] [--out docs/results/plane]
+    python studies/bench_plane.py [--configs 1,2,3] [--skip-training | --skip-estimates] [--out docs/results/plane]
 
 Writes estimates.json / training.json and a markdown summary (README.md) into --out. Timings on a
 shared CPU are noisy: run it on an idle machine.
@@ -130,7 +130,7 @@ def training(args: Args) -> list[dict]:
 
 
 def summary(est: list[dict], tr: list[dict]) -> str:
-    out = ["# --mirror-plane auto (benchmarks/bench_plane.py)", ""]
+    out = ["# --mirror-plane auto (studies/bench_plane.py)", ""]
     if est:
         out += [
             "## The estimate, per scene (mean over configurations; lego against x = 0)",

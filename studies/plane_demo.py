@@ -1,7 +1,7 @@
 """The plane-refinement demo (a script): start Flip+U from a mirror plane turned by --turn-deg and
 watch training pull it back (training/flip.py: MirrorPlane).
 
-    python benchmarks/plane_demo.py --turn-deg 10 --out docs/results/plane_refine
+    python studies/plane_demo.py --turn-deg 10 --out docs/results/plane_refine
 
 Writes plane_demo.gif (left: the scene from above with the true plane in purple, the training plane
 in orange and its trail; right: an unobserved test view as the model renders it) and

@@ -1,6 +1,6 @@
 """What a run's Rerun recording costs to open: chunks, size and read time (issue 26, item 7).
 
-    python benchmarks/bench_recording.py [--scene chair] [--steps 600]
+    python studies/bench_recording.py [--scene chair] [--steps 600]
 
 Trains one run (Flip+U at the defaults, 100 px) recording to an .rrd with the compaction at the end
 switched off, keeps a copy, compacts it with `optimize_recording` (Rerun's `rerun rrd optimize`, as

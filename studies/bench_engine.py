@@ -9,7 +9,7 @@ and the same for the vanilla-NeRF field on a fixed time budget, side by side.
 Targets: Flip+U within 0.5 dB of its final PSNR in <= 120 s; 200x200 render <= 250 ms;
 >= 50x faster than vanilla NeRF to the same PSNR.
 
-    python benchmarks/bench_engine.py [--steps 1500] [--nerf-seconds 300] [--scenes chair,lego]
+    python studies/bench_engine.py [--steps 1500] [--nerf-seconds 300] [--scenes chair,lego]
 
 Timings on a shared CPU are noisy (20% or more): run it on an idle machine.
 """

@@ -13,8 +13,8 @@ raw GuiUpdateMessage) and a 6000 x 3000 px viewport. The server clamps both (viz
 Target (issue 24): with one such client, training keeps >= 80% of its solo speed; before the clamp,
 one client stopped training for 182 s.
 
-    python benchmarks/bench_app_clients.py            # res 100, 30 s phases: 0, 1, 0, 4, 0 clients
-    python benchmarks/bench_app_clients.py --hostile --clients 0 1 0
+    python studies/bench_app_clients.py            # res 100, 30 s phases: 0, 1, 0, 4, 0 clients
+    python studies/bench_app_clients.py --hostile --clients 0 1 0
 """
 
 from __future__ import annotations

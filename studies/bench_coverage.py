@@ -2,7 +2,7 @@
 Flip+U - B/L per configuration beside how well that configuration's mirrored cameras cover its
 unobserved views (flipviz/geometry/coverage.py), with the chart the bench draws.
 
-    python benchmarks/bench_coverage.py [--out docs/results/coverage]
+    python studies/bench_coverage.py [--out docs/results/coverage]
 
 No training: the coverage is geometry (the inputs, the plane and the pose rule those tables ran
 with: `official` and `lookat`), the gains are read from the committed results.csv files. New bench
@@ -75,7 +75,7 @@ def main(args: Args) -> None:
         "",
         "Gain: Flip+U - B/L PSNR (dB) of the committed tables. Coverage: per unobserved view, the angle (about the "
         "object's centre) to the nearest mirrored camera; its mean over the 8 views, and the share within 30 degrees. "
-        "`python benchmarks/bench_coverage.py` writes this page from the committed results.csv files (no training).",
+        "`python studies/bench_coverage.py` writes this page from the committed results.csv files (no training).",
         "",
     ]
     for table, (plane, pose) in TABLES.items():

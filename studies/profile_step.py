@@ -1,7 +1,7 @@
 """Where a training step's milliseconds go, and how far each part is from this machine's floor.
 
-    python benchmarks/profile_step.py                                   # every case below, 2 threads
-    python benchmarks/profile_step.py --cases chair-fast-100
+    python studies/profile_step.py                                   # every case below, 2 threads
+    python studies/profile_step.py --cases chair-fast-100
 
 A case is one default-length run (600 steps, Flip+U, configuration 1, the plane fixed at x = 0 so that the
 mirrors train from step 0) trained in this process, without a recording or periodic renders. Three windows
@@ -293,7 +293,7 @@ def floors(w: dict, rates: dict) -> dict[str, float]:
 def markdown(results: dict) -> str:
     r = results["machine"]
     lines = [
-        "# A training step, part by part (benchmarks/profile_step.py)",
+        "# A training step, part by part (studies/profile_step.py)",
         "",
         f"Machine: copy {r['copy_GBps']:.1f} GB/s, sgemm {r['sgemm_mlp_GFLOPs']:.0f} GFLOP/s at the MLP's shape "
         f"(32768 x 64 x 64), {r['sgemm_2048_GFLOPs']:.0f} at 2048^2; {results['threads']} threads.",

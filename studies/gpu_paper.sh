@@ -4,8 +4,8 @@
 # SECONDS of wall time (a graceful stop: the run keeps its checkpoint and is evaluated), then PSNR
 # and steps/s of both written to $OUT/summary.json and printed.
 #
-#   bash benchmarks/gpu_paper.sh                      # about 10 minutes on one GPU
-#   DEVICE=cpu SECONDS_PER_RUN=60 STEPS=2 BATCH=64 RES=16 bash benchmarks/gpu_paper.sh   # the CPU check (tests)
+#   bash studies/gpu_paper.sh                      # about 10 minutes on one GPU
+#   DEVICE=cpu SECONDS_PER_RUN=60 STEPS=2 BATCH=64 RES=16 bash studies/gpu_paper.sh   # the CPU check (tests)
 #
 # Settings (environment): DEVICE (cuda), SECONDS_PER_RUN (270), STEPS (50000: the schedule's length;
 # the run stops at SECONDS_PER_RUN or STEPS), BATCH (1024 rays), RES (200: lego's own width),

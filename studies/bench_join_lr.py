@@ -7,10 +7,10 @@ Flip+U at the defaults with `--join-lr restart` (the decay counts again from the
 `continue` (one decay over the whole run), and, as a diagnostic only (it uses the true plane),
 `--mirror-plane scene`: the mirrors with the exact plane from step 0.
 
-    python benchmarks/bench_join_lr.py [--runs chair:1,chair:5,truck:1] [--variants restart,continue]
+    python studies/bench_join_lr.py [--runs chair:1,chair:5,truck:1] [--variants restart,continue]
 
 Scored on **held-out views that the protocol never uses**: the 16 built-in orbit views three
-indices past each ring view (benchmarks/bench_resolution.py: held_out), at 200 px. The protocol's
+indices past each ring view (studies/bench_resolution.py: held_out), at 200 px. The protocol's
 test-view PSNR is written beside it, not used to choose. Writes join_lr.json and join_lr.md.
 """
 

@@ -1,8 +1,8 @@
 """Training speed and PSNR of this tree against another commit's, side by side in one run (issue 43).
 
     git worktree add ../base c842c3d
-    python benchmarks/bench_step_speed.py --trees base=../base new=.           # speed, then quality
-    python benchmarks/bench_step_speed.py --trees a=../a b=../b --only speed
+    python studies/bench_step_speed.py --trees base=../base new=.           # speed, then quality
+    python studies/bench_step_speed.py --trees a=../a b=../b --only speed
 
 Speed: each case is the real command line (`flipviz train`, a fresh process, 2 threads as the CLI uses,
 its recording and periodic renders on as by default), run --reps times per tree, the trees alternating
@@ -89,7 +89,7 @@ def main(a: Args) -> None:
 
 def report(r: dict) -> str:
     labels = list(r["trees"])
-    lines = ["# Training speed and PSNR, side by side (benchmarks/bench_step_speed.py)", ""]
+    lines = ["# Training speed and PSNR, side by side (studies/bench_step_speed.py)", ""]
     lines += [f"Trees: {', '.join(f'{k} = {v}' for k, v in r['trees'].items())}. Load average at the start "
               f"{r['load'][0]:.2f}, at the end {r['load_after'][0]:.2f}.", ""]  # fmt: skip
     if r["speed"]:

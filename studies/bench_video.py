@@ -1,7 +1,7 @@
 """Video benchmark (a script, not a test): how long `flipviz video` takes for a 100-frame, 200 px
 video on this machine, for one run and for two (A/B), and the README's GIF of the unobserved side.
 
-    python benchmarks/bench_video.py [--runs RUN_BL RUN_FLIPU] [--out docs/results/video]
+    python studies/bench_video.py [--runs RUN_BL RUN_FLIPU] [--out docs/results/video]
         [--gif assets/unobserved_bl_vs_flipu.gif]
 
 Without --runs it first trains the chair, configuration 1, with B/L and Flip+U at the defaults of
@@ -92,7 +92,7 @@ def main(args: Args) -> None:
         f"Machine: {machine['cpus']} CPU cores, torch {machine['torch']} ({machine['torch_threads']} threads), no GPU. "
         "Runs: the chair, configuration 1, 600 steps at 100 px (the defaults of `flipviz train`), rendered at 200 px "
         "with 64 samples per ray. Wall time of `make_video`: opening the runs, rendering, ground truth (ray cast for "
-        "built-in scenes), H.264 encoding. `python benchmarks/bench_video.py` reproduces it.",
+        "built-in scenes), H.264 encoding. `python studies/bench_video.py` reproduces it.",
         "",
         "| path | runs | frames | frame size | seconds | frames/s | MB |",
         "|---|---|---|---|---|---|---|",

@@ -2,8 +2,8 @@
 go (issue 40)? A resumable study: `flipviz bench` trains each item (finished runs are skipped, interrupted
 ones resume from their checkpoints), then every finished run is scored again under the other protocols.
 
-    python benchmarks/study_table3.py                 # the whole plan, most telling items first; again: resume
-    python benchmarks/study_table3.py --report-only   # the tables and the plot from what is done
+    python studies/study_table3.py                 # the whole plan, most telling items first; again: resume
+    python studies/study_table3.py --report-only   # the tables and the plot from what is done
 
 Every run is in the authors' setting (`--preset authors --mirror-plane official`: the released code's
 loss, background, poses and plane x = 0; grid field unless an item says nerf) and is scored by the bench
@@ -127,7 +127,7 @@ def collect(root: Path) -> dict[str, dict[str, dict]]:
 
 def report(got: dict) -> str:
     lines = [
-        "# Table III as the authors ran it (benchmarks/study_table3.py)",
+        "# Table III as the authors ran it (studies/study_table3.py)",
         "",
         "Every run: the authors' setting (`--preset authors --mirror-plane official`), 2 runs at a time with one "
         "thread each on the 2-core CPU machine. PSNR (dB) in three protocols: *flipviz* (the 8 unobserved views "

@@ -1,7 +1,7 @@
 """Break the core on purpose, nine ways, and check that the test suite notices each one.
 
-    python benchmarks/check_mutations.py             # every mutation, against the tests that pin it
-    python benchmarks/check_mutations.py --tests tests   # against the whole suite (slower)
+    python studies/check_mutations.py             # every mutation, against the tests that pin it
+    python studies/check_mutations.py --tests tests   # against the whole suite (slower)
 
 Each mutation is one textual edit of one file, applied in a temporary copy of the repository;
 the tests run there (PYTHONPATH puts the copy first). A mutation the tests do not catch is

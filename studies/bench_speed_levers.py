@@ -1,6 +1,6 @@
 """What the remaining speed levers of a grid run would cost in quality (a script, not a test).
 
-    python benchmarks/bench_speed_levers.py [--config 1] [--workers 2]
+    python studies/bench_speed_levers.py [--config 1] [--workers 2]
 
 The bench's steps are what is left of its wall time (README, Bench speed). Three settings of the
 grid field decide how much work a step does, and each changes what a run computes:
@@ -98,7 +98,7 @@ def main(args: Args) -> None:
     lines = [
         "# Speed levers of the grid field: time against held-out quality",
         "",
-        f"`python benchmarks/bench_speed_levers.py --config {args.config}`: lego, configuration {args.config}, "
+        f"`python studies/bench_speed_levers.py --config {args.config}`: lego, configuration {args.config}, "
         f"100 px, 600 steps of 1024 rays, 64 samples, {args.workers} runs at a time with one thread each, on the "
         "2-core machine. Held-out PSNR: the mean over 20 views of the orbit's second turn (indices 100-195, "
         "every fifth), which the protocol never uses; the unobserved test views are not looked at.",

@@ -1,7 +1,7 @@
 """How steady is the plane? (a script) The same inputs trained with several seeds: the spread of the
 estimated plane (`auto`) and of the plane after training refines it (`--refine-plane`).
 
-    python benchmarks/bench_plane_seeds.py [--scenes chair,chair-turned,lego] [--configs 1] [--seeds 0,1,2,3,4]
+    python studies/bench_plane_seeds.py [--scenes chair,chair-turned,lego] [--configs 1] [--seeds 0,1,2,3,4]
 
 Spread: the largest angle between two seeds' planes (degrees) and the largest difference of their
 offsets along the first seed's normal; the error against the scene's true plane beside it. Writes
@@ -116,7 +116,7 @@ def main(a: Args) -> None:
     write_json(a.out / "seeds.json", rows)
     write_text(
         a.out / "seeds.md",
-        "# The plane over seeds\n\n`python benchmarks/bench_plane_seeds.py "
+        "# The plane over seeds\n\n`python studies/bench_plane_seeds.py "
         f"--scenes {a.scenes} --configs {a.configs} --seeds {a.seeds}` (Flip+U at the defaults, the estimate kept "
         "even when doubted)\n\n" + "\n".join(lines) + "\n",
     )
