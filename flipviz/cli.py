@@ -28,7 +28,7 @@ import tyro
 
 from flipviz.errors import Interrupted, UserError
 from flipviz.options import check_ranges
-from flipviz.training.config import EvalConfig, EvalSteps, Res, TrainConfig, preset_config
+from flipviz.training.config import PRESETS, EvalConfig, EvalSteps, Res, TrainConfig, preset_config
 
 
 @dataclass
@@ -189,8 +189,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def parse_command(argv: list[str] | None) -> object:
-    """The subcommand's config from `argv`. A `--preset` (train, app, bench) is the defaults of a
-    second parse, so that every option you pass wins over the preset's, whatever its value."""
+    """The subcommand's config from `argv`, in one parse. A `--preset` (train, app, bench) gives the
+    defaults it parses with (its whole config: `preset_config`), so every option you pass wins."""
     from flipviz.bench import BenchConfig
     from flipviz.viz.html_report import ReportConfig
     from flipviz.viz.rerun_compare import CompareConfig
@@ -215,10 +215,18 @@ def parse_command(argv: list[str] | None) -> object:
         )
         return _parsed(lambda: tyro.cli(Union[union], args=argv, description=__doc__))  # noqa: UP007 (a Union built at run time)
 
-    cmd = parse({})
-    if getattr(cmd, "preset", "fast") != "fast":
-        cmd = parse({type(cmd): preset_config(cmd.preset, type(cmd))})
-    return cmd
+    preset = _preset_named(sys.argv[1:] if argv is None else argv)
+    return parse({cls: preset_config(preset, cls) for cls in (TrainConfig, AppConfig, BenchConfig)} if preset else {})
+
+
+def _preset_named(argv: list[str]) -> str | None:
+    """The value of --preset in `argv` (None: not given, or not a preset: the parse then says so)."""
+    import argparse
+
+    scan = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    scan.add_argument("--preset")
+    seen, _ = scan.parse_known_args(argv)
+    return seen.preset if seen.preset in PRESETS and seen.preset != "fast" else None
 
 
 def _parsed(parse: Callable[[], object]) -> object:

@@ -219,7 +219,7 @@ def test_moving_the_plane_moves_the_mirrors(app):
     inputs = [c.camera for c in setup.cameras if c.kind == "input"]
     sphere = Sphere(setup.sphere_center, setup.sphere_radius)
     new_plane = Plane(setup.sphere_center, np.array([0.3, 1.0, 0.0]))
-    expected = mirror_cameras_for_plane(inputs, new_plane, sphere, setup.up, setup.settings["mirror_pose"])
+    expected = mirror_cameras_for_plane(inputs, new_plane, sphere, setup.up, setup.cfg.flip.mirror_pose)
 
     async def go():
         async with ViserTestClient(url(app)) as c:
@@ -249,7 +249,7 @@ def test_the_estimated_plane_is_shown_beside_the_dragged_one(app):
     """The app's default plane is auto: the Mirror tab shows the estimate, its confidence and the
     score-against-azimuth chart, and "Use estimated plane" moves the gizmo onto it."""
     est = app.setup.plane_estimate
-    assert est is not None and app.setup.settings["mirror_plane"] == "auto"
+    assert est is not None and app.setup.cfg.flip.mirror_plane == "auto"
     assert np.allclose(app.setup.plane.normal, est.plane.normal)  # the run trains with the estimate
 
     async def go():

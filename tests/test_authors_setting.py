@@ -13,9 +13,19 @@ import torch
 from flipviz.model import GridConfig, ModelConfig, NerfConfig, Objective, RadianceModel
 from flipviz.model.renderer import render_rays
 from flipviz.training import flip
-from flipviz.training.config import AUTHORS_PRESET, TrainConfig, preset_config
+from flipviz.training.config import TrainConfig, preset_changes, preset_config
 
 B_MIN, W = 0.1, 0.01
+AUTHORS_PRESET = {  # the official code's choices (docs/AUTHORS_SETTING.md)
+    "background": "last",
+    "density_on": "all",
+    "nll_channels": "mean",
+    "beta_from": "position",
+    "refine": "all",
+    "mirror_pose": "lookat",
+    "refine_plane": False,
+    "disagreement_limit": float("inf"),
+}
 BOX = np.array([[-1.0] * 3, [1.0] * 3])
 
 
@@ -137,6 +147,7 @@ def test_beta_from_position_does_not_see_the_view_direction(field):
 
 
 def test_preset_authors_sets_each_choice_and_a_given_value_wins():
+    assert preset_changes("authors") == AUTHORS_PRESET  # those, and nothing else
     cfg = preset_config("authors")
     assert {k: cfg.settings()[k] for k in AUTHORS_PRESET} == AUTHORS_PRESET
     assert (cfg.engine.field, cfg.engine.steps) == ("grid", 600)  # the fast grid, unlike --preset paper
@@ -173,7 +184,7 @@ def test_a_run_in_the_authors_setting_trains_saves_and_resumes(tmp_path, backgro
 
 def test_switching_presets_resets_what_the_old_one_chose_and_keeps_your_own_settings():
     """with_preset (the app's Restart / Compare "Setting"): authors -> fast gives flipviz's defaults back."""
-    from flipviz.training.config import AUTHORS_PRESET, with_preset
+    from flipviz.training.config import with_preset
 
     mine = preset_config("authors", n_samples=32, background="learned")  # two settings of my own
     assert mine.flip.density_on == "all" and mine.engine.background == "learned"

@@ -110,3 +110,21 @@ def test_gpu_paper_script_runs_on_the_cpu_with_a_tiny_step_count(tmp_path):
     settings = json.loads((tmp_path / "out/lego-flip_u/metrics.json").read_text())["settings"]
     assert (settings["field"], settings["n_samples"], settings["preset"]) == ("nerf", 128, "paper")
     assert "PSNR" in r.stdout
+
+
+def test_a_preset_is_a_whole_config_its_name_only_a_label_and_the_command_line_parsed_once(monkeypatch):
+    """Issue 42: what the paper preset changes in a model are settings of its config (no `preset == "paper"`
+    switch), so a config that only carries the label trains flipviz's field; the CLI parses once."""
+    import tyro
+
+    from flipviz.model import GridConfig, NerfConfig
+    from flipviz.training.config import preset_config
+    from flipviz.training.setup import model_config
+
+    paper = model_config(preset_config("paper"))
+    assert isinstance(paper.field, NerfConfig) and paper.field.lr_decay == 0.2 and paper.w_entropy == 0.0
+    label = model_config(TrainConfig.from_settings(preset="paper"))
+    assert isinstance(label.field, GridConfig) and label.field.lr_decay == 0.1 and label.w_entropy == 1e-3
+    calls, real = [], tyro.cli
+    monkeypatch.setattr(tyro, "cli", lambda *a, **k: calls.append(1) or real(*a, **k))
+    assert parse_command(["train", "--preset", "paper", "--steps", "7"]).engine.steps == 7 and len(calls) == 1

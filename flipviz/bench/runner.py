@@ -68,7 +68,7 @@ NOT_IN_KEY = (
 
 # Settings added after runs were stored: in a run's key only away from their default, so that those runs
 # keep their keys (and the bench skips them) while a run that sets one gets a key of its own.
-LATER_SETTINGS = ("eval_views", "eval_tune_steps")
+LATER_SETTINGS = ("eval_views", "eval_tune_steps", "lr_end", "entropy_weight")
 DEFAULTS = TrainConfig().to_dict()
 
 

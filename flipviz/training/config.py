@@ -85,32 +85,6 @@ def type_words(hint: object) -> str:
     return words.get(hint, getattr(hint, "__name__", str(hint)))
 
 
-# --preset paper: the paper's setting (Sec. V-A: vanilla NeRF, one network sampling 128 points, 50k
-# iterations, the uncertainty from 10k on; the rest as the official code's base, BARF's NeRF: 1024
-# rays a step, lr 5e-4 -> 1e-4, pose lr 1e-3 -> 1e-5, coarse-to-fine PE (0.1, 0.5) under BA).
-# --preset authors: where the official code (minjae-lulu/Just-Flip) differs from the paper's text and
-# from flipviz's defaults, its choice (docs/AUTHORS_SETTING.md gives each with its file and line).
-AUTHORS_PRESET: dict[str, object] = {
-    "background": "last",
-    "density_on": "all",
-    "nll_channels": "mean",
-    "beta_from": "position",
-    "refine": "all",
-    "mirror_pose": "lookat",
-    "refine_plane": False,
-    "disagreement_limit": float("inf"),
-}
-PAPER_PRESET: dict[str, object] = {
-    "field": "nerf",
-    "n_samples": 128,
-    "steps": 50_000,
-    "uncertainty_start": 0.2,
-    "batch_rays": 1024,
-    **AUTHORS_PRESET,
-}
-PAPER_LR_DECAY = 0.2  # 5e-4 -> 1e-4 (BARF's options/nerf_blender.yaml: lr 5e-4, lr_end 1e-4)
-
-
 # The settings the bench shares with a run, each with its bounds (flipviz/options.py), stated once
 Res = Annotated[int, Range(8, 1024)]
 Steps = Annotated[int, Range(1, 10_000_000)]
@@ -161,6 +135,11 @@ class EngineConfig:
     field's colour at the ray's far end, so space no view saw shows whatever the field holds: fog)."""
     seed: Seed = 0
     """Seed of the run (torch, the ray sampler, the estimate's search)."""
+    lr_end: Annotated[float | None, Range(1e-6, 1.0)] = None
+    """The field's learning rates decay exponentially to this fraction of their start (None: the field's
+    own, 0.1; the paper's NeRF: 0.2, BARF's 5e-4 -> 1e-4)."""
+    entropy_weight: Annotated[float, Range(0.0, 1e3)] = 1e-3
+    """Weight of the opacity-entropy regulariser that clears white fog (DVGO's; the paper's NeRF has none)."""
     device: str = "cpu"
     """cpu | cuda | cuda:N."""
 
@@ -395,8 +374,29 @@ class TrainConfig:
 
 
 T = TypeVar("T", bound=TrainConfig)
-PRESETS: dict[str, dict[str, object]] = {"fast": {}, "authors": AUTHORS_PRESET, "paper": PAPER_PRESET}
 C = TypeVar("C")
+
+# --preset, as whole configs; `preset` itself is only their label. fast: flipviz's defaults. authors: where
+# the official code (minjae-lulu/Just-Flip) differs from the paper's text and from flipviz, its choice, on
+# the fast grid (docs/AUTHORS_SETTING.md gives each with its file and line). paper: those and the paper's
+# setting (Sec. V-A: vanilla NeRF, one network sampling 128 points, 50k iterations, the uncertainty from
+# 10k on; BARF's NeRF for the rest: 1024 rays a step, lr 5e-4 -> 1e-4, no entropy term), for a GPU.
+FAST = TrainConfig()
+AUTHORS = FAST.with_settings(
+    preset="authors", background="last", density_on="all", nll_channels="mean", beta_from="position",
+    refine="all", mirror_pose="lookat", refine_plane=False, disagreement_limit=float("inf"),
+)  # fmt: skip
+PAPER = AUTHORS.with_settings(
+    preset="paper", field="nerf", n_samples=128, steps=50_000, uncertainty_start=0.2, batch_rays=1024,
+    lr_end=0.2, entropy_weight=0.0,
+)  # fmt: skip
+PRESETS: dict[str, TrainConfig] = {"fast": FAST, "authors": AUTHORS, "paper": PAPER}
+
+
+def preset_changes(name: str) -> dict[str, object]:
+    """The settings in which preset `name` differs from flipviz's defaults."""
+    fast, mine = FAST.settings(), PRESETS[name].settings()
+    return {k: v for k, v in mine.items() if v != fast[k] and k != "preset"}
 
 
 def settings_of(cfg: object) -> dict[str, object]:
@@ -415,7 +415,7 @@ def preset_config(name: str, cls: type[C] = TrainConfig, **settings: object) -> 
     the preset's settings over them (those `cls` has), then `settings` (yours) over both. The CLI
     parses with this as its defaults, so an option you pass wins whatever its value."""
     base = cls()
-    chosen = {k: v for k, v in PRESETS[name].items() if k in settings_of(base)}
+    chosen = {k: v for k, v in preset_changes(name).items() if k in settings_of(base)}
     return with_settings(base, **{**chosen, **settings, "preset": name})
 
 
@@ -426,5 +426,5 @@ def with_preset(cfg: C, preset: str) -> C:
         return cfg
     old, new = (settings_of(preset_config(p, type(cfg))) for p in (cfg.preset, preset))
     mine = settings_of(cfg)
-    names = {k for p in PRESETS.values() for k in p if k in mine}
+    names = {k for p in PRESETS for k in preset_changes(p) if k in mine}
     return with_settings(cfg, **{k: new[k] for k in names if mine[k] == old[k]}, preset=preset)

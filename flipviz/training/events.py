@@ -16,6 +16,7 @@ import numpy as np
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.geometry.symmetry import PlaneEstimate
+from flipviz.training.config import TrainConfig
 
 # mirror_init: a mirrored camera at its initial pose; mirror: at its current (BA-refined) pose;
 # mirror_true: the exact reflection through the scene's true symmetry plane.
@@ -51,7 +52,9 @@ class SetupEvent:
     true_plane: Plane | None  # the scene's true symmetry plane, when known
     cameras: list[CameraInfo]
     bbox: np.ndarray  # (2, 3)
-    settings: dict = field(default_factory=dict)  # the run's config as plain data
+    cfg: TrainConfig = field(default_factory=TrainConfig)  # the run's settings, typed
+    near: float = 2.0  # the scene's ray bounds (depth maps are coloured over them)
+    far: float = 6.0
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # the scene's up (mirrors look-at)
     plane_estimate: PlaneEstimate | None = None  # --mirror-plane auto: the estimate and its scores
 

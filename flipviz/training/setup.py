@@ -18,7 +18,7 @@ flip       = what Just Flip moves and how it scores a batch             (flip.py
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +33,7 @@ from flipviz.geometry.mirror import MirrorSet
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.model import GridConfig, ModelConfig, NerfConfig, RadianceModel
 from flipviz.training import flip
-from flipviz.training.config import PAPER_LR_DECAY, TrainConfig
+from flipviz.training.config import TrainConfig
 from flipviz.training.events import CameraInfo, SetupEvent
 from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
 from flipviz.training.plane_estimate import estimate_or_read, read_estimate
@@ -60,7 +60,7 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
     if cfg.engine.field == "nerf":
         ba = cfg.flip.ba and cfg.method in ("flip", "flip+u")
         c2f = (0.1, 0.5) if ba else None  # BARF's coarse-to-fine PE with BA
-        field = NerfConfig(barf_c2f=c2f, lr_decay=PAPER_LR_DECAY) if cfg.preset == "paper" else NerfConfig(barf_c2f=c2f)
+        field = NerfConfig(barf_c2f=c2f)
     elif cfg.engine.grid_res is not None:
         n_up = len(cfg.engine.grid_res) - 1  # upsample at evenly spread fractions of the first half
         field = GridConfig(
@@ -68,14 +68,15 @@ def model_config(cfg: TrainConfig) -> ModelConfig:
         )
     else:
         field = GridConfig()
-    entropy = {"w_entropy": 0.0} if cfg.preset == "paper" else {}  # vanilla NeRF has no entropy term
+    if cfg.engine.lr_end is not None:
+        field = replace(field, lr_decay=cfg.engine.lr_end)
     return ModelConfig(
         field=field,
+        w_entropy=cfg.engine.entropy_weight,
         n_samples=cfg.engine.n_samples,
         beta2_mode=cfg.flip.beta2_mode,
         background=cfg.engine.background,
         beta_from=cfg.flip.beta_from,
-        **entropy,
     )
 
 
@@ -206,7 +207,9 @@ def setup_event(
         true_plane=scene.symmetry_plane,
         cameras=cams,
         bbox=np.asarray(scene.bbox, dtype=np.float64),
-        settings=cfg.to_dict(),
+        cfg=cfg,
+        near=float(scene.near),
+        far=float(scene.far),
         up=np.asarray(scene.up, dtype=np.float64),
         plane_estimate=estimate,
     )

@@ -223,10 +223,7 @@ class RerunObserver(Observer):
         rec = self.rec
         r = float(e.sphere_radius)
         c = np.asarray(e.sphere_center, dtype=np.float64)
-        half_diag = 0.5 * float(np.linalg.norm(e.bbox[1] - e.bbox[0]))
-        near = float(e.settings.get("near", max(1e-3, r - half_diag)))
-        far = float(e.settings.get("far", r + half_diag))
-        self._depth_range = (near, far)
+        self._depth_range = (e.near, e.far)
 
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         rec.log(
@@ -256,7 +253,7 @@ class RerunObserver(Observer):
         # The mirror plane used: a translucent square with its normal; the true plane: an outline. A plane
         # that training refines (--refine-plane) moves: it is logged at step 0 here and at every step after.
         self._plane_size = 0.6 * r
-        self._plane_moves = e.plane is not None and bool(e.settings.get("refine_plane"))
+        self._plane_moves = e.plane is not None and e.cfg.flip.refine_plane
         if self._plane_moves:
             rec.set_time(STEP, sequence=0)
         if e.plane is not None:
@@ -286,7 +283,7 @@ class RerunObserver(Observer):
                     rr.SeriesLines(names=self._mirror_names, colors=self._series_colors),
                     static=True,
                 )
-        settings = "\n".join(f"- **{k}**: {v}" for k, v in e.settings.items())
+        settings = "\n".join(f"- **{k}**: {v}" for k, v in e.cfg.to_dict().items())
         rec.log(
             "run",
             rr.TextDocument(

@@ -57,7 +57,7 @@ class RunCurves:
 
     @classmethod
     def for_run(cls, setup: SetupEvent) -> RunCurves:
-        limit = float(setup.settings.get("disagreement_limit", float("inf")))
+        limit = setup.cfg.flip.disagreement_limit
         return cls(start_plane=setup.plane, true_plane=setup.true_plane, limit=limit, planned_steps=setup.total_steps)
 
     @property

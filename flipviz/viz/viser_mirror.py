@@ -145,11 +145,11 @@ class RunMirrors:
             flipped=[flip_image(c.image) if c.image is not None else None for c in inputs],
             sphere=sphere,
             up=np.asarray(setup.up, dtype=np.float64),
-            pose=str(setup.settings.get("mirror_pose", "reflect")),
+            pose=setup.cfg.flip.mirror_pose,
             start=start,
             trains=setup.plane is not None,
             dropped=setup.plane is None and setup.plane_estimate is not None,
-            refining=setup.plane is not None and bool(setup.settings.get("refine_plane")),
+            refining=setup.plane is not None and setup.cfg.flip.refine_plane,
             note=note,
         )
 
@@ -165,7 +165,7 @@ def start_plane(setup: SetupEvent, inputs: list[Camera], sphere: Sphere) -> tupl
         return setup.plane, ""
     if setup.plane_estimate is not None:  # estimated, dropped: not confident
         return setup.plane_estimate.plane, ""
-    preset = str(setup.settings.get("mirror_plane", "official"))  # a method without mirrors
+    preset = setup.cfg.flip.mirror_plane  # a method without mirrors
     try:
         return mirror_plane(preset, inputs, sphere, setup.true_plane), (
             "this is the plane a Flip run with these settings starts from."
