@@ -28,7 +28,7 @@ import tyro
 
 from flipviz.errors import Interrupted, UserError
 from flipviz.options import check_ranges
-from flipviz.training.config import PRESETS, EvalConfig, EvalSteps, Res, TrainConfig, preset_config
+from flipviz.training.config import PRESETS, EvalConfig, EvalEvery, EvalSteps, Res, TrainConfig, preset_config
 
 
 @dataclass
@@ -59,6 +59,8 @@ class Score:
     """unobserved: the protocol's 8 test views; orbit: every orbit view the run did not train on."""
     eval_tune_steps: EvalSteps = EvalConfig.eval_tune_steps
     """Adam steps that tune each test pose on its ground truth first (the released code: 100)."""
+    eval_every: EvalEvery = EvalConfig.eval_every
+    """Score every n-th of those views (1: all)."""
     device: str | None = None
 
 
@@ -67,8 +69,9 @@ def _score(cmd: Score) -> int:
     from flipviz.training.saved_run import open_run, score
 
     run = open_run(cmd.run, cmd.device)
-    m = score(run, cmd.eval_views, cmd.eval_tune_steps)
-    out = run.run_dir / f"scores_{cmd.eval_views}_tune{cmd.eval_tune_steps}.json"
+    m = score(run, cmd.eval_views, cmd.eval_tune_steps, cmd.eval_every)
+    every = f"_every{cmd.eval_every}" if cmd.eval_every > 1 else ""
+    out = run.run_dir / f"scores_{cmd.eval_views}_tune{cmd.eval_tune_steps}{every}.json"
     with cannot_write(out, "the scores"):
         write_json(out, m)
     print(

@@ -258,4 +258,6 @@ def test_orbit_views_are_every_orbit_view_the_run_did_not_train_on(tmp_path):
         idx = [v.index for v in views]
         assert len(idx) == 100 - trained and len(set(idx)) == len(idx)
         assert not {v.index for v in split.inputs} & set(idx) and set(v.index for v in split.tests) <= set(idx)
-    assert evaluation_views(cfg.with_settings(eval_views="unobserved"), scene, split) is split.tests
+    assert evaluation_views(cfg.with_settings(eval_views="unobserved"), scene, split) == split.tests
+    every4 = evaluation_views(cfg.with_settings(eval_every=4), scene, split)
+    assert [v.index for v in every4] == idx[::4] and len(every4) == 21

@@ -23,7 +23,13 @@ estimate_after join_lr unconfident_plane disagreement_limit after_drop refine_pl
 ba_start uncertainty refine background density_on nll_channels beta_from seed device out log_every
 images_every rrd no_rrd rerun_serve resume overwrite uncertainty_start density_weight checkpoint_every
 eval_on_stop beta2_mode n_samples grid_res preset""".split()
-ADDED = ["eval_views", "eval_tune_steps", "lr_end", "entropy_weight"]  # since: read back at their defaults
+ADDED = [
+    "eval_views",
+    "eval_tune_steps",
+    "eval_every",
+    "lr_end",
+    "entropy_weight",
+]  # since: read back at their defaults
 
 
 def test_each_flat_flag_lands_in_its_group():

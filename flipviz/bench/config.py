@@ -14,6 +14,7 @@ from flipviz.training.config import (
     DataConfig,
     EngineConfig,
     EvalConfig,
+    EvalEvery,
     EvalSteps,
     FlipConfig,
     GridRes,
@@ -77,6 +78,8 @@ class BenchConfig:
     """Every run's test views: the protocol's 8 unobserved (flipviz) or every orbit view it did not train on."""
     eval_tune_steps: EvalSteps = EvalConfig.eval_tune_steps
     """Every run's test poses tuned on their ground truth for this many Adam steps first (the authors': 100)."""
+    eval_every: EvalEvery = EvalConfig.eval_every
+    """Score every n-th of those views (1: all)."""
     preset: Literal["fast", "authors", "paper"] = TrainConfig.preset
     """Every run's preset: fast (flipviz's setting) | authors (the official code's loss and rendering
     choices on the grid; with --mirror-plane official, its x = 0) | paper (those on the paper's NeRF). An

@@ -50,6 +50,7 @@ RUN_SETTINGS = (
     "after_drop",
     "eval_views",
     "eval_tune_steps",
+    "eval_every",
 )
 # TrainConfig fields that change where a run writes or what it logs, not what it computes.
 NOT_IN_KEY = (
@@ -68,7 +69,7 @@ NOT_IN_KEY = (
 
 # Settings added after runs were stored: in a run's key only away from their default, so that those runs
 # keep their keys (and the bench skips them) while a run that sets one gets a key of its own.
-LATER_SETTINGS = ("eval_views", "eval_tune_steps", "lr_end", "entropy_weight")
+LATER_SETTINGS = ("eval_views", "eval_tune_steps", "eval_every", "lr_end", "entropy_weight")
 DEFAULTS = TrainConfig().to_dict()
 
 

@@ -93,6 +93,7 @@ Samples = Annotated[int, Range(2, 1024)]
 GridRes = Annotated[tuple[int, ...] | None, Range(8, 512)]
 Seed = Annotated[int, Range(0, 2**63 - 1)]
 EvalSteps = Annotated[int, Range(0, 10_000)]
+EvalEvery = Annotated[int, Range(1, 1000)]
 
 
 @dataclass
@@ -254,6 +255,9 @@ class EvalConfig:
     """Adam steps that tune each test pose on its ground truth before it is scored (the released code: 100;
     lr 1e-3, 1024 random pixels a step, after aligning the test cameras to the refined mirrored ones when
     BA moved the inputs too). 0: each view is scored at its given pose."""
+    eval_every: EvalEvery = 1
+    """Score every n-th of those views (1: all). Tuning 192 lego views takes 10-20 min on one CPU thread:
+    the budget study scores every 4th (studies/study_table3.py)."""
 
 
 @dataclass

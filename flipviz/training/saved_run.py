@@ -69,15 +69,16 @@ class Run:
         return [v.camera.with_pose(p) for v, p in zip(self.mirror_views, poses)]
 
 
-def score(run: Run, views: str, tune_steps: int) -> dict:
+def score(run: Run, views: str, tune_steps: int, every: int = 1) -> dict:
     """The run's scores under another protocol (EvalConfig: `views`, `tune_steps`) from its checkpoint: what
     `flipviz score` prints, e.g. a run of flipviz's protocol scored as the released code scores."""
-    cfg = run.cfg.with_settings(eval_views=views, eval_tune_steps=tune_steps).validate()
+    cfg = run.cfg.with_settings(eval_views=views, eval_tune_steps=tune_steps, eval_every=every).validate()
     tests = evaluation_views(cfg, run.scene, run.split)
     align = test_alignment(method_spec(cfg).refine_inputs, [v.camera for v in run.mirror_views], run.mirror_poses)
     renders = eval_renders(run.render, run.model, tests, tune_steps, align, cfg.engine.seed)
     out = score_renders(run.scene, tests, renders)
-    return out | {"eval_views": views, "eval_tune_steps": tune_steps, "scored_views": len(tests), "step": run.step}
+    protocol = {"eval_views": views, "eval_tune_steps": tune_steps, "eval_every": every}
+    return out | protocol | {"scored_views": len(tests), "step": run.step}
 
 
 def run_config(settings: dict) -> TrainConfig:

@@ -102,16 +102,16 @@ def load_scene_for(cfg: TrainConfig) -> SceneData:
 def evaluation_views(cfg: TrainConfig, scene: SceneData, split: Split) -> list[View]:
     """The views a run is scored on (cfg.eval.eval_views): the protocol's unobserved views, or every view of
     the orbit the run did not train on (a built-in's first turn is rendered for it); a capture's held-out
-    frames either way."""
+    frames either way. Every n-th of them (cfg.eval.eval_every)."""
     if cfg.eval.eval_views == "unobserved" or not scene.protocol:
-        return split.tests
+        return split.tests[:: cfg.eval.eval_every]
     trained = {v.index for v in split.inputs} | ({v.index for v in split.uppers} if cfg.method == "upper" else set())
     orbit = scene.views
     if cfg.data.path is None:  # a built-in holds the protocol's views: render its whole first turn
         from flipviz.data import load_builtin
 
         orbit = load_builtin(scene.name, cfg.data.res, indices=range(TURN)).views
-    return [v for i, v in sorted(orbit.items()) if i not in trained]
+    return [v for i, v in sorted(orbit.items()) if i not in trained][:: cfg.eval.eval_every]
 
 
 def run_split(cfg: TrainConfig, scene: SceneData) -> Split:

@@ -342,7 +342,7 @@ class Trainer:
         transforms.json."""
         e = self.cfg.eval
         tests = evaluation_views(self.cfg, self.scene, self.split)
-        if e.eval_views != "unobserved" or e.eval_tune_steps > 0 or renders is None:
+        if e.eval_views != "unobserved" or e.eval_tune_steps > 0 or e.eval_every > 1 or renders is None:
             mirrors = [v.camera for v in self.training.mirror_views]
             align = test_alignment(self.spec.refine_inputs, mirrors, self.mirror_c2w())
             renders = eval_renders(self.render, self.model, tests, e.eval_tune_steps, align, self.cfg.engine.seed)
