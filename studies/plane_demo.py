@@ -89,7 +89,7 @@ class Frames(Observer):
         ax.plot(tr[:, 0], tr[:, 1], ".-", color=np.array(palette.MIRROR_PLANE) / 255, ms=3, lw=1)
         for v in self.tr.split.inputs:
             ax.plot(*v.camera.center[:2], "o", color=np.array(palette.CAMERA["input"]) / 255, ms=4)
-        for c in self.tr.mirror_cameras():
+        for c in self.tr.flip.mirror_cameras():
             ax.plot(*c.center[:2], "o", color=np.array(palette.CAMERA["mirror"]) / 255, ms=4)
         ax.plot(*self.view.camera.center[:2], "s", color="0.3", ms=5)
         ax.set_xlim(-4.5, 4.5), ax.set_ylim(-4.5, 4.5), ax.set_aspect("equal"), ax.set_xticks([]), ax.set_yticks([])

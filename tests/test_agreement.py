@@ -13,7 +13,7 @@ from flipviz.data.builtin import load_builtin
 from flipviz.errors import UserError
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import Observer, SetupEvent, StepEvent
-from flipviz.training.flip import Agreement
+from flipviz.training.flip import Action, Agreement
 from flipviz.training.setup import build_run
 from flipviz.training.trainer import Trainer
 from flipviz.viz.run_curves import RunCurves
@@ -65,25 +65,25 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
     gen = torch.Generator().manual_seed(0)
     assert bool((flip.ts.bank.view[flip.sample(4000, gen, 0)] >= first_mirror).any())  # mirrors are drawn at first
     flip.agreement.mirror, flip.agreement.input = 3.0, 1.0
-    flip.step(5)  # before the NLL starts (step 10): no verdict yet
+    assert flip.after_step(5) is Action.GO_ON  # before the NLL starts (step 10): no verdict yet
     assert flip.dropped_at is None
     flip.agreement.mirror = 1.9
-    flip.step(20)  # below the limit: kept
+    assert flip.after_step(20) is Action.GO_ON  # below the limit: kept
     assert flip.dropped_at is None
     flip.agreement.mirror = 2.1
-    flip.step(30)
+    assert flip.after_step(30) is Action.RESTART_FIELD  # --after-drop restart: a fresh field
     assert flip.dropped_at == 31
     assert not bool((flip.ts.bank.view[flip.sample(4000, gen, 31)] >= first_mirror).any())  # only the inputs' rays now
     plane = flip.plane.tilt.detach().clone()
     flip.plane.tilt.grad = torch.ones_like(plane)  # even a stray gradient moves nothing mirrored any more
-    flip.step(31)
+    assert flip.after_step(31) is Action.GO_ON
     assert torch.equal(flip.plane.tilt.detach(), plane)
     resumed = build_run(cfg, chair16).flip  # a checkpoint keeps the verdict
     resumed.load_state_dict(flip.state_dict())
     assert resumed.dropped_at == 31 and resumed.agreement.ratio == pytest.approx(2.1)
     never = build_run(cfg.with_settings(disagreement_limit=math.inf), chair16).flip
     never.agreement.mirror, never.agreement.input = 1e6, 1.0
-    never.step(50)
+    assert never.after_step(50) is Action.GO_ON
     assert never.dropped_at is None
 
 

@@ -91,3 +91,24 @@ def test_imports_only_run_down_the_layers():
         if layer(n) > layer(m)
     ]
     assert not bad, "\n".join(bad)
+
+
+def test_the_trainer_sees_flip_only_through_its_interface():
+    """trainer.py is a NeRF loop: what Just Flip adds is reached through `self.flip` (flip.py's hooks), never
+    through FlipConfig or Flip's internals (issue 42: 111 lines of Flip-only methods had grown in the Trainer)."""
+    src = (PKG / "training/trainer.py").read_text()
+    tree = ast.parse(src)
+    flip_imports = [n for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module == "flipviz.training.flip"]
+    from_flip = {a.name for n in flip_imports for a in n.names}
+    assert from_flip == {"Action"}
+    assert "cfg.flip" not in src
+    inner = ("agreement", "dropped_at", "refiner", "plane", "opt_pose", "opt_plane", "objective", "mirrors")
+    reads = {
+        n.attr
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Attribute)
+        and isinstance(n.value, ast.Attribute)
+        and n.value.attr == "flip"
+        and n.attr in inner
+    }
+    assert not reads, f"the trainer reads Flip's internals: {sorted(reads)}"

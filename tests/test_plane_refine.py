@@ -247,7 +247,7 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     short.close()
     given = TrainConfig.from_settings(**{**kw, "estimate_after": 0}, out=tmp_path / "c")
     fitted = build_run(given, tr.scene, tmp_path / "a" / "plane.json")
-    assert fitted.warm_up == 0 and fitted.flip.start == 0  # --estimate-after 0 (the estimate given): mirrors from 0
+    assert fitted.flip.warm_up == 0 and fitted.flip.start == 0  # --estimate-after 0, the estimate given: mirrors from 0
 
 
 @pytest.mark.slow

@@ -434,7 +434,7 @@ def test_an_interrupt_or_refusal_during_setup_leaves_nothing_behind(tmp_path, mo
     """Ctrl-C while the plane is estimated, a bad --inputs, a refused --resume: no run folder, no
     empty recording that no reader opens, nothing beside an earlier run's files."""
     from flipviz.training import plane_estimate
-    from flipviz.training import trainer as trainer_module
+    from flipviz.training import setup as setup_module
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
@@ -455,7 +455,7 @@ def test_an_interrupt_or_refusal_during_setup_leaves_nothing_behind(tmp_path, mo
     ]
     with monkeypatch.context() as m:
         m.setattr(plane_estimate, "estimate_plane", interrupted)  # the separate fit
-        m.setattr(trainer_module, "estimate_from_field", interrupted)  # the estimate from the run's field
+        m.setattr(setup_module, "estimate_from_field", interrupted)  # the estimate from the run's field
         code = cli.main(["train", *tiny, "--mirror-plane", "auto", "--out", str(tmp_path / "run")])
     assert code == 130 and capsys.readouterr().err.strip() == "flipviz: interrupted (SIGINT)"
     assert cli.main(["train", *tiny, "--inputs", "999", "--out", str(tmp_path / "bad")]) == 2

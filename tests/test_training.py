@@ -150,7 +150,7 @@ def test_checkpoint_roundtrip_and_resume(chair, tmp_path):
     after = tr2.render(cam)
     for k in ("rgb", "depth", "opacity", "beta2"):
         np.testing.assert_array_equal(before[k], after[k])
-    np.testing.assert_array_equal(tr.mirror_c2w(), tr2.mirror_c2w())
+    np.testing.assert_array_equal(tr.flip.mirror_c2w(), tr2.flip.mirror_c2w())
     m = tr2.run()  # continues from step 20
     assert m["status"] == "finished" and tr2.step == 25
 

@@ -27,17 +27,24 @@ IV-B  Bundle adjustment of the mirrored poses (`pose_refiner`, BARF-style, model
 IV-C  Uncertainty (`objective`, model/objective.py): a flipped image is a true view only of a
       symmetric object, so the mirrored rays get a learned variance beta^2 and, after a warm-up
       of plain MSE, the Gaussian NLL: mirrored pixels that contradict the real views weigh less.
+          L(r') = ||C(r') - C_hat(r')||^2 / (2 beta_hat^2(r')) + log(beta_hat^2(r')) / 2
+                  + (w / N_s) sum_j sigma(t_j)                                         (Eqn. 7)
 
 flipviz adds: the agreement gate (`Agreement`). Each batch compares the mirrored rays' squared
       error on the object with the inputs'; once the NLL is on, mirrors above --disagreement-limit
       stop being trained (and BA and the plane freeze), and the trainer restarts the field on the
       inputs alone (--after-drop restart: the run ends as B/L) or trains it on (continue).
 
+The trainer sees `Flip` through a few calls: `poses`, `sample`, `field_lr` and `loss` inside a step,
+`after_step` after it (which answers what the trainer must do: go on, build the run again once the
+plane is estimated from the field, or restart the field after a drop: `Action`), `scalars` and
+`live` for its events, `report` for metrics.json, `state_dict` for checkpoints.
 Which method uses which part is `methods.py` (B/L+U puts IV-C on the input rays; Upper uses none).
 """
 
 from __future__ import annotations
 
+import enum
 import logging
 
 import numpy as np
@@ -46,15 +53,24 @@ from torch import Tensor, nn
 
 from flipviz.data.cameras import Camera, View
 from flipviz.data.dataset import Plane, SceneData
+from flipviz.geometry.coverage import coverage
 from flipviz.geometry.mirror import MirrorSet, make_mirror_set
+from flipviz.geometry.poses import pose_errors
+from flipviz.geometry.symmetry import PlaneEstimate, plane_error
 from flipviz.model.objective import Objective
 from flipviz.model.optim import adam, decay_lr
 from flipviz.model.pose_refine import PoseRefiner
 from flipviz.model.renderer import ray_box
 from flipviz.training.config import FlipConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, TrainView
+from flipviz.training.pose_tuning import Similarity, test_alignment
 
 log = logging.getLogger("flipviz.training")
+
+AGREEMENT_EMA = 0.05  # weight of a step's batch in the running means (about the last 20 steps)
+OBJECT_COLOUR = 0.05  # a target this far from white (any channel) is the object's
+PLANE_LR_DECAY = 0.01  # the plane's lr falls 100x over training, as BA's (1e-3 -> 1e-5)
+BA_START_WITH_PLANE = 0.5  # FlipConfig.ba_start's default when the plane is refined
 
 
 # ---------------------------------------------------------------------------------- IV-A: views
@@ -192,35 +208,52 @@ class Agreement:
 
 
 # ---------------------------------------------------------------------------------- the hooks
+class Action(enum.Enum):
+    """What the trainer does after a step (`Flip.after_step`)."""
+
+    GO_ON = "go on"
+    JOIN = "join"  # the inputs' warm-up is over: estimate the plane from the field, build the run again around it
+    RESTART_FIELD = "restart field"  # the mirrors were dropped: a fresh field on the inputs alone (--after-drop)
+
+
 class Flip:
     """Just Flip around a NeRF step: the poses of a step, its loss, and the parameters it moves
     (BA's xi and the plane), with their own Adam and schedules. Nothing moves without mirrors.
 
     `start`: the step the mirrored views join (with --mirror-plane auto, once the plane is estimated
-    from the run's own field: --estimate-after); before it only the inputs' rays train, and the mirrors'
-    schedules (the NLL's warm-up, BA, the plane) count their fractions over the steps from it."""
+    from the run's own field after `warm_up` steps on the inputs alone: --estimate-after); before it only
+    the inputs' rays train, and the mirrors' schedules (the NLL's warm-up, BA, the plane) count their
+    fractions over the steps from it. `mirrors`: the would-be mirrored views (built for every method);
+    `trained`: whether they are trained on (not for B/L, nor when an unconfident plane was dropped)."""
 
     def __init__(
         self,
         cfg: FlipConfig,
         steps: int,
         ts: TrainingSet,
-        plane: Plane | None,
+        mirrors: MirrorSet,
+        trained: bool,
         beta_min: float,
         device: torch.device | str,
         start: int = 0,
+        warm_up: int = 0,
+        estimate: PlaneEstimate | None = None,
+        true_plane: Plane | None = None,
     ) -> None:
-        self.ts, self.steps, self.start = ts, steps, start
+        self.ts, self.steps, self.start, self.warm_up = ts, steps, start, warm_up
+        self.mirrors, self.trained, self.estimate, self.true_plane = mirrors, trained, estimate, true_plane
+        self.preset = cfg.mirror_plane
         self.lr_from = start if cfg.join_lr == "restart" else 0  # the step the field's lr decay counts from
         self.after_drop = cfg.after_drop
         span = max(1, steps - start)  # the steps the mirrors train
         self.refiner = pose_refiner(ts, span, device)
+        self.refine_inputs = any(v.refine for v in ts.views if v.kind == "input")  # BA of all poses (--refine all)
         self.objective = objective(cfg, steps, beta_min, start)
         self.mirror_ids = torch.as_tensor(ts.mirror_ids, dtype=torch.long, device=device)
         is_mirror = torch.zeros(len(ts.views), dtype=torch.bool, device=device)
         self.agreement = Agreement(is_mirror.index_fill(0, self.mirror_ids, True)) if ts.mirror_ids else None
-        refine_plane = cfg.refine_plane and plane is not None and bool(ts.mirror_ids)
-        self.plane = MirrorPlane(plane, device) if refine_plane else None
+        refine_plane = cfg.refine_plane and trained and bool(ts.mirror_ids)
+        self.plane = MirrorPlane(mirrors.plane, device) if refine_plane else None
         self.plane_start = start + int(cfg.plane_start * span)
         ba_start = (
             cfg.ba_start if cfg.ba_start is not None else (BA_START_WITH_PLANE if self.plane is not None else 0.0)
@@ -236,6 +269,7 @@ class Flip:
         self.dropped_at: int | None = None  # the step at which the mirrors stopped being trained
         self.kept_rays = int((ts.bank.view < min(ts.mirror_ids)).sum()) if ts.mirror_ids else len(ts.bank)
 
+    # -- inside a step
     def sample(self, n: int, generator: torch.Generator, step: int) -> Tensor:
         """(n,) the rays of step `step`: any training view's, or, before the mirrors join and once they
         are dropped, the inputs' (the bank holds the inputs' rays first, then the mirrors')."""
@@ -266,18 +300,23 @@ class Flip:
             self.agreement.update(out, target, view)
         return self.objective(out, target, self.ts.uncertain[view], step)
 
-    def zero_grad(self) -> None:
+    # -- after it
+    def after_step(self, step: int) -> Action:
+        """Move the poses (BA) and, after its warm-up, the plane by the gradients of step `step` (0-based,
+        just taken), and clear them. Once the NLL is on, mirrors that disagree with the inputs are dropped
+        (`Agreement`); the answer says what the trainer does next."""
+        self.ba_on = self.ba_on or (self.refiner is not None and step + 1 >= self.ba_start)  # from the next step
+        action = self._move(step)
         for opt in (self.opt_pose, self.opt_plane):
             if opt is not None:
                 opt.zero_grad(set_to_none=True)
+        if step + 1 == self.warm_up:
+            return Action.JOIN
+        return action
 
-    def step(self, step: int) -> bool:
-        """Move the poses (BA) and, after its warm-up, the plane; `step`: the step just taken (0-based).
-        Once the NLL is on, mirrors that disagree with the inputs are dropped (`Agreement`): True on
-        the step they are (the trainer then restarts the field, or trains it on: --after-drop)."""
-        self.ba_on = self.ba_on or (self.refiner is not None and step + 1 >= self.ba_start)  # from the next step
+    def _move(self, step: int) -> Action:
         if step < self.start:
-            return False  # the mirrors have not joined: nothing of theirs moves
+            return Action.GO_ON  # the mirrors have not joined: nothing of theirs moves
         if self.agreement is not None and self.dropped_at is None and step >= self.gate_start:
             if self.agreement.ratio > self.disagreement_limit:
                 self.dropped_at = step + 1
@@ -288,17 +327,18 @@ class Flip:
                     self.agreement.ratio,
                     self.disagreement_limit,
                 )
-                return True
+                return Action.RESTART_FIELD if self.after_drop == "restart" else Action.GO_ON
         if self.dropped_at is not None:
-            return False  # nothing mirrored is trained: the poses and the plane stay where they were
+            return Action.GO_ON  # nothing mirrored is trained: the poses and the plane stay where they were
         if self.opt_pose is not None and step >= self.ba_start:
             self.refiner.adjust_lr(self.opt_pose, step - self.start)
             self.opt_pose.step()
         if self.opt_plane is not None and step >= self.plane_start:
             decay_lr(self.opt_plane, step - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)
             self.opt_plane.step()
-        return False
+        return Action.GO_ON
 
+    # -- what it shows
     def scalars(self) -> dict[str, float]:
         """The learning rates and, with mirrors, the agreement's errors (a StepEvent's scalars)."""
         agree = {}
@@ -321,6 +361,86 @@ class Flip:
     def current_plane(self) -> Plane | None:
         """The refined plane (None when the plane is not refined)."""
         return self.plane.plane() if self.plane is not None else None
+
+    def mirror_c2w(self) -> np.ndarray | None:
+        """(M, 4, 4) current poses of the mirrored training views; None when none is trained."""
+        if not self.ts.mirror_ids:
+            return None
+        with torch.no_grad():
+            return self.poses()[self.mirror_ids].cpu().double().numpy()
+
+    def mirror_cameras(self) -> list[Camera]:
+        """The mirrored training cameras at their current (refined) poses."""
+        c2w = self.mirror_c2w()
+        return [] if c2w is None else [v.camera.with_pose(p) for v, p in zip(self.ts.mirror_views, c2w)]
+
+    def test_alignment(self) -> Similarity:
+        """What brings test cameras into the run's frame (pose_tuning.py): the identity unless BA moved the
+        inputs too (--refine all), then the mirrors' initial centres to their refined ones."""
+        return test_alignment(self.refine_inputs, [v.camera for v in self.ts.mirror_views], self.mirror_c2w())
+
+    def live(self) -> dict:
+        """A StepEvent's mirror fields: the mirrored poses now, their change and, where known, their error;
+        the refined plane and its error."""
+        return self._pose_report() | self._plane_now()
+
+    def report(self, tests: list[Camera]) -> dict:
+        """Flip's part of metrics.json: the mirrors' coverage of the `tests` cameras (every method: B/L rows
+        carry what its configuration's mirrors would cover), the plane, the mirrored poses."""
+        m: dict = {"coverage": coverage(tests, self.mirrors.cameras, self.mirrors.sphere.center)}
+        if self.trained or self.estimate is not None:
+            m["plane"] = self._plane_report()
+        pose = self._pose_report()
+        if pose:
+            m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items()}
+        return m
+
+    def _plane_report(self) -> dict:
+        """The mirror plane used, its estimate (auto), and its error against the scene's true plane."""
+        rep: dict = {"used": self.mirrors.plane.to_dict(), "preset": self.preset, "trained": self.trained}
+        # trained: False when the mirrors were dropped at setup (the estimate's confidence) or by the agreement gate
+        if self.estimate is not None:  # not trained: dropped for its confidence (--unconfident-plane)
+            rep["confidence"] = self.estimate.confidence
+            rep["estimate_seconds"] = self.estimate.seconds
+        true = self.true_plane
+        if true is not None:
+            rep["error_deg"], rep["error_offset"] = plane_error(self.mirrors.plane, true)
+        if self.agreement is not None:  # the agreement gate
+            rep["disagreement"] = self.agreement.ratio
+            rep["dropped_at"] = self.dropped_at
+            rep["trained"] = self.dropped_at is None
+            restarted = self.dropped_at is not None and self.after_drop == "restart"
+            rep["restarted_at"] = self.dropped_at if restarted else None  # the field restarted on the inputs
+        refined = self.current_plane()
+        if refined is not None:  # --refine-plane: "used" is where the plane started, "refined" where it is now
+            rep["refined"] = refined.to_dict()
+            rep["refined_change_deg"], rep["refined_change_offset"] = plane_error(refined, self.mirrors.plane)
+            if true is not None:
+                rep["refined_error_deg"], rep["refined_error_offset"] = plane_error(refined, true)
+        return rep
+
+    def _plane_now(self) -> dict:
+        """The refined plane now and its error where known (StepEvent's plane fields); {} when not refined."""
+        plane, true = self.current_plane(), self.true_plane
+        if plane is None:
+            return {}
+        if true is None:
+            return {"plane": plane}
+        deg, offset = plane_error(plane, true)
+        return {"plane": plane, "plane_err_deg": deg, "plane_err_offset": offset}
+
+    def _pose_report(self) -> dict:
+        """The mirrored poses now, with their change and, where known, their error."""
+        c2w = self.mirror_c2w()
+        if c2w is None:
+            return {}
+        init = [v.camera.c2w for v in self.ts.mirror_views]
+        change = np.array([pose_errors(a, b) for a, b in zip(c2w, init)])
+        rep: dict = dict(mirror_c2w=c2w, mirror_rot_change_deg=change[:, 0], mirror_trans_change=change[:, 1])
+        if self.mirrors.true_cameras is not None:
+            err = np.array([pose_errors(a, t.c2w) for a, t in zip(c2w, self.mirrors.true_cameras)])
+            rep.update(mirror_rot_err_deg=err[:, 0], mirror_trans_err=err[:, 1])
+        return rep
 
     # -- checkpoints
     def state_dict(self) -> dict:
@@ -351,9 +471,3 @@ class Flip:
             if dropped is not None and (isinstance(dropped, bool) or not isinstance(dropped, int)):
                 raise ValueError(f"dropped_at {dropped!r} is not a step")
             self.dropped_at = dropped
-
-
-AGREEMENT_EMA = 0.05  # weight of a step's batch in the running means (about the last 20 steps)
-OBJECT_COLOUR = 0.05  # a target this far from white (any channel) is the object's
-PLANE_LR_DECAY = 0.01  # the plane's lr falls 100x over training, as BA's (1e-3 -> 1e-5)
-BA_START_WITH_PLANE = 0.5  # FlipConfig.ba_start's default when the plane is refined

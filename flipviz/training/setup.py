@@ -36,7 +36,13 @@ from flipviz.training import flip
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import CameraInfo, SetupEvent
 from flipviz.training.methods import MethodSpec, TrainingSet, build_training_set, method_spec
-from flipviz.training.plane_estimate import estimate_or_read, read_estimate
+from flipviz.training.plane_estimate import (
+    estimate_from_field,
+    estimate_or_read,
+    estimate_plane,
+    read_estimate,
+    shared_estimate,
+)
 
 log = logging.getLogger("flipviz.training")
 
@@ -48,10 +54,10 @@ class RunSetup:
     split: Split
     mirrors: MirrorSet  # built for every method, so that the app can show the would-be mirrors
     estimate: PlaneEstimate | None  # --mirror-plane auto (Flip methods)
-    warm_up: int  # steps to train on the inputs alone before the plane is estimated from the field (else 0)
     training: TrainingSet
     model: RadianceModel
     flip: flip.Flip
+    start_over: bool = False  # built again after the warm-up without mirrors: the run starts afresh as B/L
 
 
 def model_config(cfg: TrainConfig) -> ModelConfig:
@@ -172,11 +178,41 @@ def build_run(
     training = build_training_set(
         spec, split.inputs, flip.mirrored_train_views(spec, mirrors, scene.bbox), split.uppers, device=device
     )
+    start_over = model is not None and not spec.mirrors  # dropped for its confidence after the warm-up
     model = model if model is not None else fresh_model(cfg, scene, with_beta)
-    plane = mirrors.plane if spec.mirrors else None
-    join = mirrors_join_at(cfg) if plane is not None else 0
-    hooks = flip.Flip(cfg.flip, cfg.engine.steps, training, plane, model.cfg.beta_min, device, join)
-    return RunSetup(scene, spec, split, mirrors, estimate, warm_up, training, model, hooks)
+    join = mirrors_join_at(cfg) if spec.mirrors else 0
+    hooks = flip.Flip(
+        cfg.flip,
+        cfg.engine.steps,
+        training,
+        mirrors,
+        spec.mirrors,
+        model.cfg.beta_min,
+        device,
+        start=join,
+        warm_up=warm_up,
+        estimate=estimate,
+        true_plane=scene.symmetry_plane,
+    )
+    return RunSetup(scene, spec, split, mirrors, estimate, training, model, hooks, start_over)
+
+
+def join_mirrors(cfg: TrainConfig, scene: SceneData, model: RadianceModel, steps: int) -> RunSetup:
+    """--mirror-plane auto, after `steps` steps of `model` on the inputs alone: the plane estimated from
+    that field (plane_estimate.py; or read from --plane-file, another run's), and the run built again
+    around the same field with its mirrored views. A doubted plane under --unconfident-plane drop gives a
+    run without them (`start_over`: it trains afresh as B/L; the bench then takes B/L's result)."""
+    split = run_split(cfg, scene)
+    shared = Path(cfg.flip.plane_file) if cfg.flip.plane_file is not None else None
+    est = read_estimate(shared)
+    if est is None:
+        try:
+            est = estimate_from_field(model, split.inputs, scene, cfg.engine.seed, steps)
+        except ValueError as e:  # too few steps to show a surface yet
+            log.warning("%s after %d steps; estimating it with a separate fit instead", e, steps)
+            est = estimate_plane(split.inputs, scene, cfg.engine.device, cfg.engine.seed)
+        est = shared_estimate(est, shared)
+    return build_run(cfg, scene, estimate=est, model=model)
 
 
 def setup_event(

@@ -11,7 +11,8 @@ One step (`_train_step`), a NeRF step with Just Flip's hooks (flip.py, paper Sec
     o, d     = rays of the pixels from their views' poses             (R, 3) each
     out      = render(o, d): rgb (R, 3), beta2, sigma_mean (R,)
     loss     = flip.loss(out, target, view, step) + regulariser       (model/objective.py)
-and the field's optimiser and Flip's (poses, plane) step together.
+then the field's optimiser steps, and `flip.after_step` moves what Flip adds (poses, plane) and says
+what comes next (`_act`: go on; build the run again around the field; restart the field).
 """
 
 from __future__ import annotations
@@ -29,9 +30,7 @@ from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
 from flipviz.files import FolderLock, cannot_write, remove_leftover_temps, signals_deferred
-from flipviz.geometry.coverage import coverage
-from flipviz.geometry.poses import pose_errors
-from flipviz.geometry.symmetry import PlaneEstimate, plane_error
+from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.model.objective import psnr
 from flipviz.runtime import keep_freed_memory
 from flipviz.training import artifacts
@@ -46,9 +45,18 @@ from flipviz.training.events import (
     RenderedView,
     StepEvent,
 )
-from flipviz.training.plane_estimate import estimate_from_field, estimate_plane, read_estimate, shared_estimate
-from flipviz.training.pose_tuning import eval_renders, test_alignment
-from flipviz.training.setup import RunSetup, build_run, evaluation_views, fresh_model, load_scene_for, setup_event
+from flipviz.training.flip import Action
+from flipviz.training.plane_estimate import estimate_plane
+from flipviz.training.pose_tuning import eval_renders
+from flipviz.training.setup import (
+    RunSetup,
+    build_run,
+    evaluation_views,
+    fresh_model,
+    join_mirrors,
+    load_scene_for,
+    setup_event,
+)
 
 log = logging.getLogger("flipviz.training")
 
@@ -96,46 +104,21 @@ class Trainer:
         self.step = 0
         self.field_start = 0  # the step the field began at: 0, or the agreement gate's drop (--after-drop restart)
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
-        if rs.warm_up:
-            self._estimate_after(rs.warm_up)
-        if self.plane_estimate is not None:
-            artifacts.write_plane(self.run_dir, self.plane_estimate)
         self._observers: list[Observer] = []
         self._lock = threading.RLock()  # one lock for a training step and for render()
         self._running = threading.Event()
         self._running.set()  # set = not paused
         self._stop = threading.Event()
+        while self.step < self.flip.warm_up:  # steps before the run is whole (flip.py: auto's plane from the field)
+            self._step()
+        if self.plane_estimate is not None:
+            artifacts.write_plane(self.run_dir, self.plane_estimate)
         if cfg.output.resume is not None:
             self._load(cfg.output.resume)
 
     def _adopt(self, rs: RunSetup) -> None:
         self.spec, self.split, self.mirrors, self.training = rs.spec, rs.split, rs.mirrors, rs.training
-        self.plane_estimate, self.model, self.flip = rs.estimate, rs.model, rs.flip
-
-    def _estimate_after(self, steps: int) -> None:
-        """--mirror-plane auto: train the run's field on the inputs alone for `steps` steps, estimate the
-        plane from it (plane_estimate.py; or read --plane-file, another run's) and let the mirrored
-        views join: the run is built again around the same field and optimiser. A doubted plane under
-        --unconfident-plane drop starts the run afresh as B/L instead (the bench then takes B/L's result)."""
-        cfg = self.cfg
-        t0 = time.perf_counter()
-        while self.step < steps:
-            self._train_step()
-        self.train_seconds += time.perf_counter() - t0
-        shared = Path(cfg.flip.plane_file) if cfg.flip.plane_file is not None else None
-        est = read_estimate(shared)
-        if est is None:
-            try:
-                est = estimate_from_field(self.model, self.split.inputs, self.scene, cfg.engine.seed, steps)
-            except ValueError as e:  # too few steps to show a surface yet
-                log.warning("%s after %d steps; estimating it with a separate fit instead", e, steps)
-                est = estimate_plane(self.split.inputs, self.scene, cfg.engine.device, cfg.engine.seed)
-            est = shared_estimate(est, shared)
-        self._adopt(build_run(cfg, self.scene, estimate=est, model=self.model))
-        if not self.spec.mirrors:  # dropped (--unconfident-plane drop): a fresh field and sampler, seeded as B/L's
-            self._new_field(0)
-            self._gen = torch.Generator().manual_seed(cfg.engine.seed)
-            self.step, self.train_seconds = 0, 0.0
+        self.plane_estimate, self.model, self.flip, self.start_over = rs.estimate, rs.model, rs.flip, rs.start_over
 
     def _take_over_folder(self) -> None:
         """Holding the run folder's lock: remove the temporary files of killed writes, and refuse to
@@ -194,21 +177,18 @@ class Trainer:
         """(V, 4, 4) current poses of all training views (mirrors: moved with the refined plane and by BA)."""
         return self.flip.poses()
 
-    def mirror_c2w(self) -> np.ndarray | None:
-        """(M, 4, 4) current poses of the mirrored training views; None when the method has none."""
-        if not self.training.mirror_ids:
-            return None
-        with torch.no_grad():
-            return self.current_poses()[self.training.mirror_ids].cpu().double().numpy()
-
-    def mirror_cameras(self) -> list[Camera]:
-        """The mirrored training cameras at their current (refined) poses."""
-        c2w = self.mirror_c2w()
-        views = self.training.mirror_views
-        return [] if c2w is None else [v.camera.with_pose(p) for v, p in zip(views, c2w)]
-
     # ------------------------------------------------------------------ one step
-    def _train_step(self) -> dict:
+    def _step(self) -> dict:
+        """One training step, timed, then what Flip asks for after it; its scalars."""
+        t0 = time.perf_counter()
+        with self._lock:
+            scalars, action = self._train_step()
+        self.train_seconds += time.perf_counter() - t0
+        with self._lock:
+            self._act(action)
+        return scalars
+
+    def _train_step(self) -> tuple[dict, Action]:
         cfg, bank = self.cfg, self.training.bank
         field_step = self.step - self.field_start  # the field's schedules count from its start
         with signals_deferred():  # an interrupt never leaves half-upsampled grids or a stale optimiser
@@ -225,30 +205,39 @@ class Trainer:
         if not torch.isfinite(total):
             raise NonFiniteLoss(f"loss became {float(total.detach())} at step {self.step + 1}")
         self.opt_field.zero_grad(set_to_none=False)  # in place: the grids' gradients are kept (model/optim.py)
-        self.flip.zero_grad()
         total.backward()
         self.opt_field.step()
-        dropped = self.flip.step(self.step)
+        action = self.flip.after_step(self.step)
         self.step += 1
-        if dropped and cfg.flip.after_drop == "restart":
-            self._restart_field()
-        return {
+        scalars = {
             "loss": float(total.detach()),
             "psnr": psnr(float(((out["rgb"].detach() - target) ** 2).mean())),
             "lr_field": float(self.opt_field.param_groups[0]["lr"]),
             **self.flip.scalars(),
         }
+        return scalars, action
 
-    def _restart_field(self) -> None:
-        """After the agreement gate dropped the mirrors: a fresh field, seeded as B/L's, trains on the
-        inputs alone for the full cfg.engine.steps from here (the run then ends as B/L would)."""
-        log.warning(
-            "step %d: restarting the field on the inputs alone for %d steps (--after-drop restart)",
-            self.step,
-            self.cfg.engine.steps,
-        )
+    def _act(self, action: Action) -> None:
+        """What Flip asked for after a step (flip.py: Action)."""
+        if action is Action.JOIN:  # the run built again around its field (setup.py: join_mirrors)
+            self._adopt(join_mirrors(self.cfg, self.scene, self.model, self.step))
+            if self.start_over:  # a fresh field and sampler from step 0, seeded as B/L's
+                self._restart(0)
+                self.step, self.train_seconds = 0, 0.0
+        elif action is Action.RESTART_FIELD:
+            steps = self.cfg.engine.steps
+            log.warning(
+                "step %d: restarting the field on the inputs alone for %d steps (--after-drop restart)",
+                self.step,
+                steps,
+            )
+            self._restart(self.step)
+
+    def _restart(self, start: int) -> None:
+        """A fresh field, seeded as B/L's, from step `start` for the full cfg.engine.steps (the run then ends
+        as B/L would)."""
         with signals_deferred():
-            self._new_field(self.step)
+            self._new_field(start)
             self._gen = torch.Generator().manual_seed(self.cfg.engine.seed)
 
     def _new_field(self, start: int) -> None:
@@ -273,22 +262,10 @@ class Trainer:
                 if self._stop.is_set():
                     status = "stopped"
                     break
-                t0 = time.perf_counter()
-                with self._lock:
-                    scalars = self._train_step()
-                self.train_seconds += time.perf_counter() - t0
+                scalars = self._step()
                 if self.step % cfg.output.log_every == 0 or self.step == self.total_steps:
-                    self._emit(
-                        "on_step",
-                        StepEvent(
-                            self.step,
-                            self.total_steps,
-                            self.train_seconds,
-                            scalars,
-                            **self._pose_report(),
-                            **self._plane_now(),
-                        ),
-                    )
+                    live = self.flip.live()  # the mirrored poses and the plane now
+                    self._emit("on_step", StepEvent(self.step, self.total_steps, self.train_seconds, scalars, **live))
                 if (
                     cfg.output.images_every > 0
                     and self.step % cfg.output.images_every == 0
@@ -343,8 +320,7 @@ class Trainer:
         e = self.cfg.eval
         tests = evaluation_views(self.cfg, self.scene, self.split)
         if e.eval_views != "unobserved" or e.eval_tune_steps > 0 or e.eval_every > 1 or renders is None:
-            mirrors = [v.camera for v in self.training.mirror_views]
-            align = test_alignment(self.spec.refine_inputs, mirrors, self.mirror_c2w())
+            align = self.flip.test_alignment()
             renders = eval_renders(self.render, self.model, tests, e.eval_tune_steps, align, self.cfg.engine.seed)
         m = ev.score_renders(self.scene, tests, renders)
         m.update(train_seconds=self.train_seconds, steps=self.step, scored_views=len(tests), **self.report())
@@ -354,31 +330,17 @@ class Trainer:
                 artifacts.write_test_renders(self.run_dir, [v.name for v in tests], preds, [v.rgb for v in tests])
                 if self.training.mirror_ids:
                     mirrors = [v.image for v in self.training.mirror_views]
-                    artifacts.write_transforms(self.run_dir, self.mirror_cameras(), mirrors)
+                    artifacts.write_transforms(self.run_dir, self.flip.mirror_cameras(), mirrors)
                 artifacts.write_metrics(self.run_dir, m)
         return m
 
     def report(self) -> dict:
-        """What a run's metrics say besides its scores: the run, its mirrors' coverage of the
-        unobserved views, its plane and its mirrored poses."""
-        tests = self.split.tests
-        m = dict(
-            method=self.cfg.method,
-            config=self.split.config,
-            scene=self.scene.name,
-            mirror_plane=self.cfg.flip.mirror_plane,
-            settings=self.cfg.to_dict(),
-        )
-        # the mirrors this configuration gives (built for every method, so B/L rows carry it too)
-        m["coverage"] = coverage(
-            [v.camera for v in tests], [v.camera for v in self.mirrors.views], self.mirrors.sphere.center
-        )
-        if self.spec.mirrors or self.plane_estimate is not None:
-            m["plane"] = self._plane_report()
-        pose = self._pose_report()
-        if pose:
-            m["mirror_poses"] = {k: np.asarray(v).tolist() for k, v in pose.items()}
-        return m
+        """What a run's metrics say besides its scores: the run and its settings, and Flip's part (its
+        mirrors' coverage of the unobserved views, its plane and its mirrored poses)."""
+        settings = self.cfg.to_dict()
+        m = dict(method=self.cfg.method, config=self.split.config, scene=self.scene.name, settings=settings)
+        m["mirror_plane"] = settings["mirror_plane"]
+        return m | self.flip.report([v.camera for v in self.split.tests])
 
     def close(self) -> None:
         """Give the run folder back without training (run() does it when it ends)."""
@@ -393,7 +355,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "opt_field": self.opt_field.state_dict(),
             **self.flip.state_dict(),  # poses, opt_pose, plane, opt_plane
-            "mirror_c2w": None if (c2w := self.mirror_c2w()) is None else torch.from_numpy(c2w),  # for saved_run
+            "mirror_c2w": None if (c2w := self.flip.mirror_c2w()) is None else torch.from_numpy(c2w),  # for saved_run
             "train_seconds": self.train_seconds,
             "rng": self._gen.get_state(),
             "torch_rng": torch.get_rng_state(),
@@ -454,58 +416,6 @@ class Trainer:
             except Exception as e:  # observers never break training
                 log.warning("observer %s.%s failed: %s: %s", type(obs).__name__, name, type(e).__name__, e)
 
-    def _plane_report(self) -> dict:
-        """The mirror plane used, its estimate (auto), and its error against the scene's true plane."""
-        rep: dict = {
-            "used": self.mirrors.plane.to_dict(),
-            "preset": self.cfg.flip.mirror_plane,
-            "trained": self.spec.mirrors,
-        }
-        # trained: False when the mirrors were dropped at setup (the estimate's confidence) or by the agreement gate
-        if self.plane_estimate is not None:  # not trained: dropped for its confidence (--unconfident-plane)
-            rep["confidence"] = self.plane_estimate.confidence
-            rep["estimate_seconds"] = self.plane_estimate.seconds
-        true = self.scene.symmetry_plane
-        if true is not None:
-            deg, offset = plane_error(self.mirrors.plane, true)
-            rep.update(error_deg=deg, error_offset=offset)
-        if self.flip.agreement is not None:  # the agreement gate (flip.py: Agreement)
-            rep["disagreement"] = self.flip.agreement.ratio
-            rep["dropped_at"] = self.flip.dropped_at
-            rep["trained"] = self.flip.dropped_at is None
-            rep["restarted_at"] = self.field_start or None  # the field restarted on the inputs (--after-drop)
-        refined = self.flip.current_plane()
-        if refined is not None:  # --refine-plane: "used" is where the plane started, "refined" where it is now
-            rep["refined"] = refined.to_dict()
-            rep["refined_change_deg"], rep["refined_change_offset"] = plane_error(refined, self.mirrors.plane)
-            if true is not None:
-                rep["refined_error_deg"], rep["refined_error_offset"] = plane_error(refined, true)
-        return rep
-
-    def _plane_now(self) -> dict:
-        """The refined plane now and its error where known (StepEvent's plane fields); {} when not refined."""
-        plane, true = self.flip.current_plane(), self.scene.symmetry_plane
-        if plane is None:
-            return {}
-        if true is None:
-            return {"plane": plane}
-        deg, offset = plane_error(plane, true)
-        return {"plane": plane, "plane_err_deg": deg, "plane_err_offset": offset}
-
-    def _pose_report(self) -> dict:
-        """The mirrored poses now, with their change and, where known, their error."""
-        c2w = self.mirror_c2w()
-        if c2w is None:
-            return {}
-        rep: dict = {}
-        init = [v.camera.c2w for v in self.training.mirror_views]
-        change = np.array([pose_errors(a, b) for a, b in zip(c2w, init)])
-        rep.update(mirror_c2w=c2w, mirror_rot_change_deg=change[:, 0], mirror_trans_change=change[:, 1])
-        if self.mirrors.true_cameras is not None:
-            err = np.array([pose_errors(a, t.c2w) for a, t in zip(c2w, self.mirrors.true_cameras)])
-            rep.update(mirror_rot_err_deg=err[:, 0], mirror_trans_err=err[:, 1])
-        return rep
-
     def _rendered(self, kind, cam: Camera, gt: np.ndarray, r: dict[str, np.ndarray] | None = None) -> RenderedView:
         r = self.render(cam) if r is None else r
         return RenderedView(cam.name, kind, cam, r["rgb"], r["depth"], r["opacity"], r.get("beta2"), gt)
@@ -515,7 +425,7 @@ class Trainer:
         rs = test_renders or [None] * len(self.split.tests)
         tests = [self._rendered("test", v.camera, v.rgb, r) for v, r in zip(self.split.tests, rs)]
         mirrors = [
-            self._rendered("mirror", c, v.image) for v, c in zip(self.training.mirror_views, self.mirror_cameras())
+            self._rendered("mirror", c, v.image) for v, c in zip(self.training.mirror_views, self.flip.mirror_cameras())
         ]
         scalars = {"test_psnr": float(np.mean([ev.image_psnr(t.rgb, t.gt) for t in tests]))} if tests else {}
         return ImagesEvent(self.step, tests, mirrors, scalars)
