@@ -194,6 +194,8 @@ def test_run_report_is_one_offline_page(runs, tmp_path, monkeypatch):
     assert imgs[-1]["src"].startswith("data:image/gif")
     html = out.read_text()
     assert "Flip+U" in html and "PSNR, unobserved views" in html and "silhouette IoU" in html
+    plane = json.loads((runs["flip+u"] / "metrics.json").read_text())["plane"]  # the plane training ended with
+    assert f"{plane['refined_error_deg']:.3f} deg, offset {plane['refined_error_offset']:.4f} (refined" in html
     if chromium_available():  # and a real browser shows every image from the file alone
         with chromium() as d:
             d.get(out.resolve().as_uri())

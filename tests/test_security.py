@@ -141,3 +141,16 @@ def test_run_b_never_reads_a_dataset_outside_the_roots_nor_says_whether_it_exist
     assert "not found" in said["inside"]
     with pytest.raises(UserError, match="not found from here"):  # the CLI (no roots): the user named the run
         open_run(root / "nowhere")
+
+
+def test_the_reports_refined_plane_reads_only_a_plane():
+    """`flipviz report` draws the plane from metrics.json: anything but three finite numbers for its point
+    and a non-zero normal is no plane (a crafted file gets the starting plane, not a traceback)."""
+    from flipviz.viz.html_report import refined_plane
+
+    good = {"plane": {"refined": {"point": [0, 0, 0], "normal": [1, 0, 0]}}}
+    assert refined_plane(good) is not None
+    for bad in ({}, {"plane": 3}, {"plane": {"refined": "x"}}, {"plane": {"refined": {"point": ["a"] * 3}}}):
+        assert refined_plane(bad) is None
+    for point, normal in (([0, 0], [1, 0, 0]), ([0, 0, float("nan")], [1, 0, 0]), ([0, 0, 0], [0, 0, 0])):
+        assert refined_plane({"plane": {"refined": {"point": point, "normal": normal}}}) is None

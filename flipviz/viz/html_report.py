@@ -25,6 +25,7 @@ import numpy as np
 import tyro
 from markdown_it import MarkdownIt
 
+from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
 from flipviz.files import cannot_write, write_text
 from flipviz.options import Range, check_ranges
@@ -125,8 +126,17 @@ class ReportConfig:
     device: str | None = None
 
 
-def camera_map(setup, mirror_c2w: np.ndarray | None) -> np.ndarray:
-    """Top view of the run's cameras (x, y of their centres) with the mirror plane, as an RGB image."""
+def refined_plane(metrics: dict) -> Plane | None:
+    """The plane training ended with (metrics.json's plane.refined); None when not refined or not readable."""
+    try:
+        return Plane.from_dict(metrics["plane"]["refined"])  # Plane checks its point and normal
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def camera_map(setup, mirror_c2w: np.ndarray | None, refined: Plane | None = None) -> np.ndarray:
+    """Top view of the run's cameras (x, y of their centres) with the mirror plane (the `refined` one, where
+    training refined it, beside the one it started from), as an RGB image."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -157,7 +167,8 @@ def camera_map(setup, mirror_c2w: np.ndarray | None) -> np.ndarray:
             label="mirrored, BA-refined",
         )
     for plane, color, label in (
-        (setup.plane, palette.MIRROR_PLANE, "mirror plane"),
+        (refined if refined is not None else setup.plane, palette.MIRROR_PLANE, "mirror plane"),
+        (setup.plane if refined is not None else None, palette.MIRROR_PLANE, "mirror plane at the start"),
         (setup.true_plane, palette.TRUE_PLANE, "true plane"),
     ):
         if plane is None:
@@ -171,7 +182,7 @@ def camera_map(setup, mirror_c2w: np.ndarray | None) -> np.ndarray:
                 [p[1] - d[1], p[1] + d[1]],
                 color=palette.hex_color(color),
                 label=label,
-                linestyle="-" if label == "mirror plane" else "--",
+                linestyle={"mirror plane": "-", "true plane": "--"}.get(label, ":"),
             )
     ax.scatter([c[0]], [c[1]], marker="+", color="black", s=60, label="sphere centre")
     ax.set_aspect("equal")
@@ -217,7 +228,10 @@ def _summary(run: Run, metrics: dict) -> str:
     if "depth_abs" in metrics:
         rows.append(("depth error (world units)", f"{metrics['depth_abs']:.3f}"))
     plane = metrics.get("plane", {})
-    if "error_deg" in plane:
+    if "refined_error_deg" in plane:  # the plane training refined: where it ended, and where it started
+        err = f"{plane['refined_error_deg']:.3f} deg, offset {plane['refined_error_offset']:.4f}"
+        rows.append(("plane error vs the true plane", f"{err} (refined; {plane['error_deg']:.2f} deg at the start)"))
+    elif "error_deg" in plane:
         rows.append(
             ("plane error vs the true plane", f"{plane['error_deg']:.2f} deg, offset {plane['error_offset']:.3f}")
         )
@@ -237,10 +251,11 @@ def run_page(cfg: ReportConfig) -> str:
     mpath = run.run_dir / "metrics.json"
     metrics = json.loads(mpath.read_text()) if mpath.is_file() else {}
     setup = run.setup_event
+    refined = refined_plane(metrics)
     label = f"{METHOD_LABELS[run.cfg.method]}, {run.scene.name}"
     sections = [
         Section("Run", _summary(run, metrics)),
-        Section("Cameras", "", [Figure(png_uri(camera_map(setup, run.mirror_c2w())), width="640px")]),
+        Section("Cameras", "", [Figure(png_uri(camera_map(setup, run.mirror_c2w(), refined)), width="640px")]),
     ]
     gt = GroundTruth.of_run(run)
     tests = []
