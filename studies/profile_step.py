@@ -56,7 +56,7 @@ SCOPES = {
     "flipviz.training.flip:Flip.loss": "objective",
     "flipviz.model.radiance:RadianceModel.regulariser": "regularisers (TV, entropy)",
     "flipviz.training.flip:Flip.poses": "Flip hooks",
-    "flipviz.training.flip:Flip.step": "Flip hooks",
+    "flipviz.training.flip:Flip.after_step": "Flip hooks",
     "flipviz.training.flip:Agreement.update": "Flip hooks",
     "flipviz.model.radiance:RadianceModel.update_schedule": "schedule (occupancy refresh)",
 }
@@ -134,7 +134,7 @@ def part_of(event) -> str:
             query = next((c for c in p.cpu_children if "|GridField.query" in c.name), None)
             return "sampling" if query is None or event.time_range.start < query.time_range.start else "compositing"
         if p.name.startswith("Optimizer."):
-            inside_flip = any("|Flip.step" in q.name for q in ancestors(p))
+            inside_flip = any("|Flip.after_step" in q.name for q in ancestors(p))
             return "Flip hooks" if inside_flip else "optimiser"
         p = p.cpu_parent
     return "other"

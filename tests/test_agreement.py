@@ -45,6 +45,28 @@ def test_the_disagreement_is_the_mirrored_over_the_input_error_on_the_object_onl
     )
 
 
+def test_each_mirror_has_its_own_ratio_from_the_batches_that_drew_it():
+    """Views 0 (input), 1 and 2 (mirrors): mirror 1 errs 4x the input, mirror 2 as much as the input. The
+    pooled ratio blends them; each mirror's own says which disagrees. A batch with too few of a mirror's
+    object rays leaves its mean alone."""
+    a = Agreement(torch.tensor([False, True, True]))
+    view = torch.tensor([0] * 4 + [1] * 4 + [2] * 4)
+    target = torch.full((12, 3), 0.5)
+    sq = torch.tensor([0.1] * 4 + [0.4] * 4 + [0.1] * 4)
+    rgb = target.clone()
+    rgb[:, 0] -= sq.sqrt()
+    out = {"rgb": rgb, "opacity": torch.ones(12)}
+    a.update(out, target, view)
+    assert a.ratio == pytest.approx(2.5, rel=1e-4)
+    np.testing.assert_allclose(a.ratios, [4.0, 1.0], rtol=1e-4)
+    few = torch.tensor([0] * 4 + [1] * 4 + [2] * 3)  # mirror 2: 3 rays, under MIN_MIRROR_RAYS
+    rgb2 = target[:11].clone()
+    rgb2[8:, 0] -= 1.0  # mirror 2's few rays err a lot
+    rgb2[:8] = rgb[:8]
+    a.update({"rgb": rgb2, "opacity": torch.ones(11)}, target[:11], few)
+    np.testing.assert_allclose(a.ratios, [4.0, 1.0], rtol=1e-4)
+
+
 @pytest.fixture(scope="module")
 def chair16():
     return load_builtin("chair", 16)

@@ -4,7 +4,7 @@ A plain NeRF step (`Trainer._train_step`) draws random pixels of the training vi
 rays from the views' poses, renders them and minimises the squared error plus the field's
 regulariser. `Flip` is what Just Flip puts around that step, the way gsplat's strategies sit
 around its step: the trainer takes the poses of a step from `Flip.poses()`, its loss from
-`Flip.loss()`, and lets `Flip.step()` move what Just Flip adds. A run without mirrors (B/L,
+`Flip.loss()`, and lets `Flip.after_step()` move what Just Flip adds. A run without mirrors (B/L,
 Upper, or a Flip run whose estimated plane was dropped) gets the same object with nothing to
 move: fixed poses and, after the warm-up, the NLL on its uncertain rays (B/L+U) or the MSE.
 
@@ -69,6 +69,7 @@ log = logging.getLogger("flipviz.training")
 
 AGREEMENT_EMA = 0.05  # weight of a step's batch in the running means (about the last 20 steps)
 OBJECT_COLOUR = 0.05  # a target this far from white (any channel) is the object's
+MIN_MIRROR_RAYS = 4  # a batch moves a mirror's own running mean when it drew this many of its object rays
 PLANE_LR_DECAY = 0.01  # the plane's lr falls 100x over training, as BA's (1e-3 -> 1e-5)
 BA_START_WITH_PLANE = 0.5  # FlipConfig.ba_start's default when the plane is refined
 
@@ -186,11 +187,16 @@ class Agreement:
     A symmetric object (with a good plane) lets one field fit both, so the ratio falls towards 1
     as training goes on; where the mirrors show what the inputs contradict (a mug's handle, a
     plane far off), the field cannot fit both and the mirrored error stays several times the inputs'.
+
+    Each mirrored view also has its own running mean (`per_mirror`, over the batches that drew at least
+    MIN_MIRROR_RAYS of its object rays) and so its own ratio (`ratios`): which mirrors disagree.
     """
 
     def __init__(self, is_mirror: Tensor) -> None:
         self.is_mirror = is_mirror  # (V,) bool
         self.mirror = self.input = float("nan")
+        self.slot = torch.cumsum(is_mirror.long(), 0) - 1  # (V,) a mirrored view's index among the mirrors
+        self.per_mirror = torch.full((int(is_mirror.sum()),), float("nan"), dtype=torch.float64)  # (M,)
 
     def update(self, out: dict[str, Tensor], target: Tensor, view: Tensor) -> None:
         with torch.no_grad():
@@ -201,10 +207,28 @@ class Agreement:
                 if bool(sel.any()):
                     x, old = float(sq[sel].mean()), getattr(self, name)
                     setattr(self, name, x if old != old else (1.0 - AGREEMENT_EMA) * old + AGREEMENT_EMA * x)
+            self._update_each(sq, obj & m, view)
+
+    def _update_each(self, sq: Tensor, sel: Tensor, view: Tensor) -> None:
+        """Each mirror's running mean of its object rays' squared error in this batch (`sel`: those rays)."""
+        slot = self.slot[view[sel]]  # (K,) which mirror each selected ray is of
+        n = len(self.per_mirror)
+        sums = torch.zeros(n, dtype=sq.dtype, device=sq.device).index_add_(0, slot, sq[sel])  # (M,)
+        counts = torch.bincount(slot, minlength=n)  # (M,)
+        x = (sums / counts.clamp(min=1)).double().cpu()
+        old = self.per_mirror
+        new = torch.where(old.isnan(), x, (1.0 - AGREEMENT_EMA) * old + AGREEMENT_EMA * x)
+        self.per_mirror = torch.where((counts >= MIN_MIRROR_RAYS).cpu(), new, old)
 
     @property
     def ratio(self) -> float:
         return self.mirror / self.input if self.input > 0 else float("nan")
+
+    @property
+    def ratios(self) -> np.ndarray:
+        """(M,) each mirror's ratio: its own running error over the inputs' (NaN until measured)."""
+        inp = self.input if self.input > 0 else float("nan")
+        return (self.per_mirror / inp).numpy()
 
 
 # ---------------------------------------------------------------------------------- the hooks
@@ -407,6 +431,7 @@ class Flip:
             rep["error_deg"], rep["error_offset"] = plane_error(self.mirrors.plane, true)
         if self.agreement is not None:  # the agreement gate
             rep["disagreement"] = self.agreement.ratio
+            rep["disagreement_per_mirror"] = self.agreement.ratios.tolist()  # each mirror's own, same limit
             rep["dropped_at"] = self.dropped_at
             rep["trained"] = self.dropped_at is None
             restarted = self.dropped_at is not None and self.after_drop == "restart"
@@ -450,7 +475,12 @@ class Flip:
             "plane": self.plane.state_dict() if self.plane is not None else None,
             "opt_plane": self.opt_plane.state_dict() if self.opt_plane is not None else None,
             "ba_on": self.ba_on,
-            "agreement": {"mirror": a.mirror, "input": a.input, "dropped_at": self.dropped_at}
+            "agreement": {
+                "mirror": a.mirror,
+                "input": a.input,
+                "per_mirror": a.per_mirror.tolist(),
+                "dropped_at": self.dropped_at,
+            }
             if (a := self.agreement)
             else None,
         }
@@ -467,6 +497,12 @@ class Flip:
         agree = state.get("agreement")
         if self.agreement is not None and isinstance(agree, dict):
             self.agreement.mirror, self.agreement.input = float(agree["mirror"]), float(agree["input"])
+            each = agree.get("per_mirror")  # absent in checkpoints written before it was measured
+            if each is not None:
+                each = torch.as_tensor(each, dtype=torch.float64)
+                if each.shape != self.agreement.per_mirror.shape:
+                    raise ValueError(f"{len(each)} mirrors' agreement for {len(self.agreement.per_mirror)} mirrors")
+                self.agreement.per_mirror = each
             dropped = agree.get("dropped_at")
             if dropped is not None and (isinstance(dropped, bool) or not isinstance(dropped, int)):
                 raise ValueError(f"dropped_at {dropped!r} is not a step")
