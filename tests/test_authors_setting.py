@@ -261,3 +261,32 @@ def test_orbit_views_are_every_orbit_view_the_run_did_not_train_on(tmp_path):
     assert evaluation_views(cfg.with_settings(eval_views="unobserved"), scene, split) == split.tests
     every4 = evaluation_views(cfg.with_settings(eval_every=4), scene, split)
     assert [v.index for v in every4] == idx[::4] and len(every4) == 21
+
+
+def test_the_bench_table_names_the_protocol_its_runs_were_scored_in():
+    """Table III's title says which views were scored, whether a sample of them (--eval-every) and whether
+    each test pose was tuned on its ground truth: a table never passes the authors' protocol for flipviz's."""
+    import dataclasses
+
+    from flipviz.bench.config import BenchConfig
+    from flipviz.bench.tables import ordinal, protocol_words
+
+    cfg = BenchConfig()
+    assert protocol_words(cfg) == "flipviz's protocol (the 8 unobserved views, at their poses)"
+    authors = dataclasses.replace(cfg, eval_views="orbit", eval_tune_steps=100)
+    assert protocol_words(authors).startswith("the authors' protocol (every orbit view a run did not train on")
+    assert "tuned 100 steps on its ground truth" in protocol_words(authors)
+    sample = protocol_words(dataclasses.replace(authors, eval_every=4))
+    assert sample.startswith("the authors' protocol (every 4th of the orbit views")
+    assert [ordinal(n) for n in (1, 2, 3, 4, 11, 12, 13, 21, 22, 101)] == [
+        "1st",
+        "2nd",
+        "3rd",
+        "4th",
+        "11th",
+        "12th",
+        "13th",
+        "21st",
+        "22nd",
+        "101st",
+    ]

@@ -311,9 +311,19 @@ def time_table(rows: list[dict], methods: list[str]) -> str:
     return "\n".join(lines)
 
 
+def ordinal(n: int) -> str:
+    """2nd, 3rd, 4th, 11th, 21st: the English ordinal of n."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
+
+
 def protocol_words(cfg: BenchConfig) -> str:
     """The protocol a bench's runs were scored in, as its tables name it (training/config.py: EvalConfig)."""
-    views = "the 8 unobserved views" if cfg.eval_views == "unobserved" else "every orbit view a run did not train on"
+    every = f"every {ordinal(cfg.eval_every)} of " if cfg.eval_every > 1 else ""  # --eval-every n: a sample
+    if cfg.eval_views == "unobserved":
+        views = f"{every}the 8 unobserved views"
+    else:
+        views = f"{every}the orbit views a run did not train on" if every else "every orbit view a run did not train on"
     if cfg.eval_tune_steps == 0:
         return f"flipviz's protocol ({views}, at their poses)" if cfg.eval_views == "unobserved" else views
     return f"the authors' protocol ({views}, each pose tuned {cfg.eval_tune_steps} steps on its ground truth)"
