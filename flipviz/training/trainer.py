@@ -118,7 +118,7 @@ class Trainer:
 
     def _adopt(self, rs: RunSetup) -> None:
         self.spec, self.split, self.mirrors, self.training = rs.spec, rs.split, rs.mirrors, rs.training
-        self.plane_estimate, self.model, self.flip, self.start_over = rs.estimate, rs.model, rs.flip, rs.start_over
+        self.plane_estimate, self.model, self.flip = rs.estimate, rs.model, rs.flip
 
     def _take_over_folder(self) -> None:
         """Holding the run folder's lock: remove the temporary files of killed writes, and refuse to
@@ -220,8 +220,9 @@ class Trainer:
     def _act(self, action: Action) -> None:
         """What Flip asked for after a step (flip.py: Action)."""
         if action is Action.JOIN:  # the run built again around its field (setup.py: join_mirrors)
-            self._adopt(join_mirrors(self.cfg, self.scene, self.model, self.step))
-            if self.start_over:  # a fresh field and sampler from step 0, seeded as B/L's
+            rs = join_mirrors(self.cfg, self.scene, self.model, self.step)
+            self._adopt(rs)
+            if rs.start_over:  # a fresh field and sampler from step 0, seeded as B/L's
                 self._restart(0)
                 self.step, self.train_seconds = 0, 0.0
         elif action is Action.RESTART_FIELD:

@@ -166,10 +166,10 @@ def camera_map(setup, mirror_c2w: np.ndarray | None, refined: Plane | None = Non
             color=palette.hex_color(palette.CAMERA["mirror"]),
             label="mirrored, BA-refined",
         )
-    for plane, color, label in (
-        (refined if refined is not None else setup.plane, palette.MIRROR_PLANE, "mirror plane"),
-        (setup.plane if refined is not None else None, palette.MIRROR_PLANE, "mirror plane at the start"),
-        (setup.true_plane, palette.TRUE_PLANE, "true plane"),
+    for plane, color, label, style in (
+        (refined if refined is not None else setup.plane, palette.MIRROR_PLANE, "mirror plane", "-"),
+        (setup.plane if refined is not None else None, palette.MIRROR_PLANE, "mirror plane at the start", ":"),
+        (setup.true_plane, palette.TRUE_PLANE, "true plane", "--"),
     ):
         if plane is None:
             continue
@@ -182,7 +182,7 @@ def camera_map(setup, mirror_c2w: np.ndarray | None, refined: Plane | None = Non
                 [p[1] - d[1], p[1] + d[1]],
                 color=palette.hex_color(color),
                 label=label,
-                linestyle={"mirror plane": "-", "true plane": "--"}.get(label, ":"),
+                linestyle=style,
             )
     ax.scatter([c[0]], [c[1]], marker="+", color="black", s=60, label="sphere centre")
     ax.set_aspect("equal")
