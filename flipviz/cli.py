@@ -102,7 +102,7 @@ def _run_train(cfg: TrainConfig) -> int:
     rerun = None
     try:
         if not cfg.output.no_rrd or cfg.output.rerun_serve:
-            from flipviz.viz.rerun_observer import make_rerun_observer
+            from flipviz.viz.rerun.observer import make_rerun_observer
 
             rerun = make_rerun_observer(cfg, cfg.output.out, bake=trainer.point_cloud)
             trainer.add_observer(rerun)
@@ -195,10 +195,10 @@ def parse_command(argv: list[str] | None) -> object:
     """The subcommand's config from `argv`, in one parse. A `--preset` (train, app, bench) gives the
     defaults it parses with (its whole config: `preset_config`), so every option you pass wins."""
     from flipviz.bench import BenchConfig
-    from flipviz.viz.html_report import ReportConfig
-    from flipviz.viz.rerun_compare import CompareConfig
-    from flipviz.viz.video import VideoConfig
-    from flipviz.viz.viser_app import AppConfig
+    from flipviz.viz.app.app import AppConfig
+    from flipviz.viz.export.report import ReportConfig
+    from flipviz.viz.export.video import VideoConfig
+    from flipviz.viz.rerun.compare import CompareConfig
 
     commands = {
         "train": TrainConfig,
@@ -252,10 +252,10 @@ def _parsed(parse: Callable[[], object]) -> object:
 
 def _dispatch(cmd) -> int:
     from flipviz.bench import BenchConfig, run_bench
-    from flipviz.viz.html_report import ReportConfig, write_run_report
-    from flipviz.viz.rerun_compare import CompareConfig, run_compare
-    from flipviz.viz.video import VideoConfig
-    from flipviz.viz.viser_app import AppConfig, run_app
+    from flipviz.viz.app.app import AppConfig, run_app
+    from flipviz.viz.export.report import ReportConfig, write_run_report
+    from flipviz.viz.export.video import VideoConfig
+    from flipviz.viz.rerun.compare import CompareConfig, run_compare
 
     if isinstance(cmd, AppConfig):  # AppConfig extends TrainConfig: test it first
         run_app(cmd)
@@ -278,7 +278,7 @@ def _dispatch(cmd) -> int:
 
 
 def _video(cmd) -> int:
-    from flipviz.viz.video import make_video
+    from flipviz.viz.export.video import make_video
 
     mp4, gif = make_video(cmd)
     print(f"wrote {mp4}" + (f" and {gif}" if gif else ""))

@@ -40,7 +40,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "studies")]
 from browser import chromium, screenshot_png, wait_until  # noqa: E402
 from test_browser import button, canvas_element, checkbox, choose, tab  # noqa: E402
 
-from flipviz.viz.viser_app import App, AppConfig, check_run_input  # noqa: E402
+from flipviz.viz.app.app import App, AppConfig, check_run_input  # noqa: E402
 
 
 @dataclass

@@ -9,7 +9,7 @@ each phase, compared with the solo phases around it. Target: with 4 clients, tra
 >= 50% of its solo speed.
 
 With --hostile, each client asks for what the GUI never offers: "Max resolution" 6000 (sent as a
-raw GuiUpdateMessage) and a 6000 x 3000 px viewport. The server clamps both (viz/viser_guard.py).
+raw GuiUpdateMessage) and a 6000 x 3000 px viewport. The server clamps both (viz/app/guard.py).
 Target (issue 24): with one such client, training keeps >= 80% of its solo speed; before the clamp,
 one client stopped training for 182 s.
 
@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # a checkout without installing; the test client
 from viser_client import ViserTestClient  # noqa: E402
 
-from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
+from flipviz.viz.app.app import App, AppConfig  # noqa: E402
 
 
 @dataclass

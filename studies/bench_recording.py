@@ -50,7 +50,7 @@ def read_all(path: Path) -> int:
 
 
 def measure(path: Path, reads: int) -> dict:
-    from flipviz.viz.rerun_viewer import _rerun_cli
+    from flipviz.viz.rerun.viewer import _rerun_cli
 
     times = []
     for _ in range(reads):
@@ -70,7 +70,7 @@ def measure(path: Path, reads: int) -> dict:
 def main(args: Args) -> None:
     from flipviz.training.config import TrainConfig
     from flipviz.training.trainer import Trainer
-    from flipviz.viz.rerun_observer import make_rerun_observer, optimize_recording
+    from flipviz.viz.rerun.observer import make_rerun_observer, optimize_recording
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = TrainConfig.from_settings(

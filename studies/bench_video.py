@@ -26,7 +26,7 @@ import tyro
 from flipviz.files import write_json, write_text
 from flipviz.training.config import TrainConfig
 from flipviz.training.run import train
-from flipviz.viz.video import VideoConfig, make_video
+from flipviz.viz.export.video import VideoConfig, make_video
 
 
 @dataclass

@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "studies")]
 from viser_client import ViserTestClient  # noqa: E402
 
-from flipviz.viz.viser_app import App, AppConfig  # noqa: E402
+from flipviz.viz.app.app import App, AppConfig  # noqa: E402
 
 
 @dataclass

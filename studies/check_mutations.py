@@ -1,4 +1,4 @@
-"""Break the core on purpose, nine ways, and check that the test suite notices each one.
+"""Break the core on purpose, thirteen ways, and check that the test suite notices each one.
 
     python studies/check_mutations.py             # every mutation, against the tests that pin it
     python studies/check_mutations.py --tests tests   # against the whole suite (slower)
@@ -88,9 +88,37 @@ MUTATIONS = (
     Mutation(
         "(i) the mirrored rays drawn before the mirrors join",
         "flipviz/training/flip.py",
-        "inputs_only = self.dropped_at is not None or step < self.start",
+        "inputs_only = self.dropped_at is not None or step - self.rewound < self.start",
         "inputs_only = self.dropped_at is not None",
         ("tests/test_plane_refine.py::test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join",),
+    ),
+    Mutation(
+        "(j) a per-mirror verdict drops every kept mirror once one disagrees",
+        "flipviz/training/flip.py",
+        "return [i for i in kept if ratios[i] > self.disagreement_limit]",
+        "return kept if any(ratios[i] > self.disagreement_limit for i in kept) else []",
+        ("tests/test_agreement.py::test_a_mirror_over_the_limit_leaves_alone_and_the_others_train_on",),
+    ),
+    Mutation(
+        "(k) a dropped mirror's rays stay in the sampler",
+        "flipviz/training/flip.py",
+        "kept += [m for m, at in zip(self.ts.mirror_ids, self.mirror_dropped_at) if at is None]",
+        "kept += list(self.ts.mirror_ids)",
+        ("tests/test_agreement.py::test_a_mirror_over_the_limit_leaves_alone_and_the_others_train_on",),
+    ),
+    Mutation(
+        "(l) a dropped mirror's pose goes on moving",
+        "flipviz/training/flip.py",
+        "return c2w.index_copy(0, self.mirror_ids[gone], self.frozen[gone])",
+        "return c2w",
+        ("tests/test_agreement.py::test_a_mirror_over_the_limit_leaves_alone_and_the_others_train_on",),
+    ),
+    Mutation(
+        "(m) a resumed run forgets which mirrors were dropped",
+        "flipviz/training/flip.py",
+        "            self.mirror_dropped_at = list(each)\n",
+        "",
+        ("tests/test_agreement.py::test_a_mirror_over_the_limit_leaves_alone_and_the_others_train_on",),
     ),
 )
 

@@ -81,6 +81,7 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
         uncertainty_start=0.1,
         out=tmp_path / "run",
         disagreement_limit=2.0,
+        agreement_verdict="pooled",
     )
     flip = build_run(cfg, chair16).flip
     first_mirror = min(flip.ts.mirror_ids)
@@ -109,6 +110,118 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
     assert never.dropped_at is None
 
 
+def per_mirror_flip(tmp_path, chair16, **settings):
+    """Flip's hooks of a chair run whose agreement is measured: the inputs err 1, each mirror as much."""
+    cfg = TrainConfig.from_settings(
+        scene="chair",
+        res=16,
+        steps=100,
+        mirror_plane="scene",
+        uncertainty_start=0.1,
+        ba_start=0.0,
+        out=tmp_path / "run",
+        disagreement_limit=2.0,
+        **settings,
+    )
+    flip = build_run(cfg, chair16).flip
+    flip.agreement.mirror = flip.agreement.input = 1.0
+    flip.agreement.per_mirror = torch.ones(len(flip.ts.mirror_ids), dtype=torch.float64)
+    return flip
+
+
+def nudge(flip) -> None:
+    """A gradient on every mirror's BA pose and on the plane, as a step's loss would leave."""
+    flip.refiner.xi.grad = torch.full_like(flip.refiner.xi, 0.1)
+    flip.plane.tilt.grad = torch.full_like(flip.plane.tilt, 0.1)
+
+
+def test_a_mirror_over_the_limit_leaves_alone_and_the_others_train_on(tmp_path, chair16):
+    """Per-mirror verdicts: mirror 1's own ratio passes the limit, the pooled one does not. Mirror 1 alone
+    leaves: its rays leave the sampler, its pose freezes where it was; the other mirrors and the plane still
+    move. A checkpoint keeps the verdicts: the resumed run drops nothing twice and revives nothing."""
+    flip = per_mirror_flip(tmp_path, chair16)
+    ids = flip.ts.mirror_ids
+    flip.agreement.per_mirror[1] = 2.5
+    assert flip.after_step(20) is Action.GO_ON
+    assert flip.mirror_dropped_at == [None, 21] + [None] * (len(ids) - 2) and flip.dropped_at is None
+    drawn = set(flip.ts.bank.view[flip.sample(20000, torch.Generator().manual_seed(0), 21)].tolist())
+    assert ids[1] not in drawn and {ids[0], ids[2], 0} <= drawn  # the inputs and the kept mirrors
+    before = flip.poses().detach()
+    nudge(flip)
+    assert flip.after_step(21) is Action.GO_ON
+    after = flip.poses().detach()
+    assert torch.equal(after[ids[1]], before[ids[1]])  # frozen where it left
+    assert not torch.allclose(after[ids[0]], before[ids[0]])  # BA and the plane still move the kept ones
+    resumed = per_mirror_flip(tmp_path, chair16)
+    resumed.load_state_dict(flip.state_dict())
+    assert resumed.mirror_dropped_at == flip.mirror_dropped_at
+    assert torch.equal(resumed.poses().detach()[ids[1]], before[ids[1]])
+    resumed.agreement.per_mirror[1] = 9.0  # still disagreeing: already dropped, not dropped again
+    assert resumed.after_step(22) is Action.GO_ON and resumed.mirror_dropped_at[1] == 21
+    resumed.agreement.per_mirror[:] = 9.0  # now every kept one disagrees: they leave at 24, mirror 1 stays at 21
+    resumed.after_step(23)
+    assert resumed.mirror_dropped_at == [24, 21] + [24] * (len(ids) - 2) and resumed.dropped_at == 24
+    pooled = per_mirror_flip(tmp_path, chair16, agreement_verdict="pooled")
+    pooled.agreement.per_mirror[1] = 2.5  # the pooled ratio (1.0) is under the limit: all stay
+    assert pooled.after_step(20) is Action.GO_ON and pooled.n_dropped == 0
+
+
+def test_a_rollback_takes_the_poses_and_the_schedules_back_to_the_join(tmp_path, chair16):
+    """--after-drop rollback: BA's poses and the plane go back to where they were when the mirrors joined
+    (here step 0), the schedules count again from there, and the errors are measured afresh."""
+    flip = per_mirror_flip(tmp_path, chair16, after_drop="rollback")
+    joined = flip.poses().detach()
+    nudge(flip)
+    flip.after_step(19)
+    assert not torch.allclose(flip.poses().detach(), joined)
+    flip.agreement.per_mirror[2] = 3.0
+    assert flip.after_step(20) is Action.ROLL_BACK
+    now = flip.poses().detach()
+    kept = [m for i, m in enumerate(flip.ts.mirror_ids) if i != 2]
+    assert torch.equal(now[kept], joined[kept]) and flip.rewound == 21  # step 21 counts as the join's step 0
+    assert not torch.equal(now[flip.ts.mirror_ids[2]], joined[flip.ts.mirror_ids[2]])  # frozen where it left
+    assert math.isnan(flip.agreement.ratio) and np.isnan(flip.agreement.ratios).all()
+    flip.agreement.mirror, flip.agreement.input = 9.0, 1.0
+    flip.agreement.per_mirror[:] = 9.0
+    assert flip.after_step(25) is Action.GO_ON  # schedule step 4: the NLL (and the gate) start at 10 again
+    assert flip.n_dropped == 1
+
+
+@pytest.mark.slow
+def test_a_rollback_of_every_mirror_trains_the_inputs_from_the_join_and_resumes(tmp_path, chair16):
+    """Every mirror dropped under --after-drop rollback: the field goes back to the join (step 0 with a
+    fixed plane) and trains the inputs alone for the full steps: the run grows by the steps since the join;
+    a checkpoint of it resumes there."""
+    cfg = TrainConfig.from_settings(
+        scene="chair",
+        res=16,
+        steps=60,
+        batch_rays=256,
+        no_rrd=True,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        method="flip+u",
+        mirror_plane="scene",
+        disagreement_limit=1.0,
+        agreement_verdict="pooled",
+        after_drop="rollback",
+        out=tmp_path / "flip",
+    )
+    tr = Trainer(cfg, chair16)
+    steps = Steps()
+    tr.add_observer(steps)
+    m = tr.run()
+    at = m["plane"]["dropped_at"]
+    assert at is not None and m["plane"]["rewound_steps"] == at and m["steps"] == at + 60, m["plane"]
+    assert steps.events[-1].total_steps == at + 60 and m["plane"]["kept_mirrors"] == 0
+    resumed = Trainer(cfg.with_settings(resume=str(tmp_path / "flip")), chair16)
+    assert resumed.field_start == at and resumed.flip.rewound == at and resumed.model.with_beta
+    ours = tr.model.state_dict()
+    assert all(torch.equal(resumed.model.state_dict()[k], ours[k]) for k in ours)
+    resumed.close()
+
+
 @pytest.mark.slow
 def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_path, chair16):
     """--after-drop restart: at the drop a fresh field, seeded as B/L's, trains the inputs for the full
@@ -125,7 +238,12 @@ def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_pat
     )
     flip = Trainer(
         TrainConfig.from_settings(
-            method="flip+u", mirror_plane="scene", disagreement_limit=1.0, out=tmp_path / "flip", **base
+            method="flip+u",
+            mirror_plane="scene",
+            disagreement_limit=1.0,
+            agreement_verdict="pooled",
+            out=tmp_path / "flip",
+            **base,
         ),
         chair16,
     )
@@ -183,6 +301,7 @@ def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
         eval_on_stop=False,
         out=tmp_path / scene,
         disagreement_limit=2.0,
+        agreement_verdict="pooled",
     )
     tr = Trainer(cfg)
     steps = Steps()
@@ -213,7 +332,8 @@ def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_pat
     curves = RunCurves.for_run(mug_steps.setup)
     for e in mug_steps.events:
         curves.add_step(e)
-    x, ratio, limit = curves.agreement_data()
+    x, ratio, limit, *each = curves.agreement_data()
+    assert len(each) == len(mug_steps.events[-1].mirror_ratio)  # one ratio per mirror beside the pooled one
     assert curves.dropped_at == next(e.step for e in mug_steps.events if e.scalars["mirrors_trained"] == 0.0)
     assert curves.restarted  # the events' total grew by the steps before the drop
     assert np.all(np.isfinite(ratio)) and np.all(limit == 2.0) and ratio.max() > 2.0 and len(x) == len(ratio)

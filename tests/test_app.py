@@ -21,18 +21,17 @@ from flipviz.data.dataset import Plane
 from flipviz.geometry import mirror_cameras_for_plane
 from flipviz.geometry.sphere import Sphere
 from flipviz.training.config import TrainConfig
-from flipviz.viz.training_session import train_config
-from flipviz.viz.viser_app import App, AppConfig
-from flipviz.viz.viser_common import (
+from flipviz.viz.app.app import App, AppConfig
+from flipviz.viz.app.poses import (
     c2w_from_viser,
     camera_from_viser,
     plane_from_pose,
     plane_to_arg,
     plane_wxyz,
     to_viser_pose,
-    upscale,
-    visualize_output,
 )
+from flipviz.viz.app.session import train_config
+from flipviz.viz.images import upscale, visualize_output
 
 pytestmark = pytest.mark.slow
 
@@ -657,7 +656,7 @@ def test_the_pixel_probe_reads_a_clicked_pixel_of_the_snapped_view(app):
 
 
 def test_a_click_ray_lands_on_its_own_pixel():
-    from flipviz.viz.viser_probe import pixel_of_ray
+    from flipviz.viz.app.probe import pixel_of_ray
 
     cam = Camera(np.eye(4), 12, 8, 9.0).with_pose(c2w_from_viser(*to_viser_pose(np.eye(4))))
     _, dirs = cam.rays()
@@ -787,10 +786,58 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
         a.stop()
 
 
+def test_the_frustums_and_the_mirror_tab_show_each_mirror_s_verdict(tmp_path):
+    """Issue 41: the mug mirrored through x = 0 shows its handle where the inputs saw none. As the gate drops
+    mirrored views one by one, their frustums turn grey (the kept ones do not), the Mirror tab names each
+    dropped view with its step, and its chart has one ratio line per mirror beside the pooled one."""
+    from flipviz.viz import palette
+
+    cfg = AppConfig.from_settings(
+        scene="mug",
+        config=4,
+        res=32,
+        steps=100_000,
+        batch_rays=512,
+        no_rrd=True,
+        port=0,
+        log_every=2,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        out=tmp_path / "run",
+        view_width=64,
+        mirror_plane="official",
+        uncertainty_start=0.0005,  # the NLL, and the gate, from step 50
+        disagreement_limit=2.0,
+        after_drop="continue",
+    )
+    a = App(cfg).start()
+    try:
+        deadline = time.monotonic() + 600
+        while not any(a.scene.dropped) or "Mirrored views dropped" not in a.mirror.curves.verdict.content:
+            assert a.status != "error", a.message
+            assert time.monotonic() < deadline, (a.step, a.mirror.curves.verdict.content)
+            time.sleep(0.1)
+        a.trainer.pause()
+        names = a.mirror.curves.names
+        dropped = [n for n, gone in zip(names, a.scene.dropped) if gone]
+        text = a.mirror.curves.verdict.content
+        assert all(f"{n} at step" in text for n in dropped), text
+        assert not any(f"{n} at step" in text for n, gone in zip(names, a.scene.dropped) if not gone), text
+        for h, gone in zip(a.scene.mirror_handles, a.scene.dropped):
+            assert (tuple(h.color) == palette.DROPPED) == gone
+        while a.mirror.curves.agreement is None or not a.mirror.curves.agreement.visible:
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        assert len(a.mirror.curves.agreement.data) == 3 + len(names)  # step, pooled, limit, one per mirror
+    finally:
+        a.stop()
+
+
 def test_the_mirror_tab_follows_the_plane_training_refines(app):
     """--refine-plane: the plane quad moves with training, its normal's trail is drawn, the text gives its error.
     (Before the restart test: after it, the app trains B/L, which has no plane to refine.)"""
-    from flipviz.viz.viser_common import plane_wxyz
+    from flipviz.viz.app.poses import plane_wxyz
 
     async def go():
         async with ViserTestClient(url(app)) as c:
@@ -984,7 +1031,7 @@ def test_the_render_share_is_a_fraction_of_the_time():
     """Issue 26: "browser renders 115% of the time". A job longer than the window fills it, never more."""
     import threading
 
-    from flipviz.viz.viser_render import RenderWorker
+    from flipviz.viz.app.render import RenderWorker
 
     w, done = RenderWorker(duty=1.0), threading.Event()
     try:
@@ -1005,7 +1052,7 @@ def test_the_plane_chart_draws_a_peak_at_0_or_180_whole_in_the_middle():
     180): the chart runs 90 degrees either side of the estimate."""
     from flipviz.geometry.symmetry import PlaneEstimate
     from flipviz.viz import palette
-    from flipviz.viz.viser_estimate import score_chart
+    from flipviz.viz.app.estimate import score_chart
 
     az = np.arange(0.0, 180.0, 2.0)
     d = (az - 179.0 + 90.0) % 180.0 - 90.0  # circular distance to 179 degrees
@@ -1032,7 +1079,7 @@ def test_bulk_gui_updates_run_on_viser_s_loop_thread():
 
     import viser
 
-    from flipviz.viz.gui_thread import on_gui_thread
+    from flipviz.viz.app.gui_thread import on_gui_thread
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
@@ -1067,7 +1114,7 @@ def test_a_push_from_another_thread_never_walks_the_loop_s_waiters():
     import collections
     import threading
 
-    from flipviz.viz.gui_thread import LoopEvent, thread_safe_pushes
+    from flipviz.viz.app.gui_thread import LoopEvent, thread_safe_pushes
 
     walked_on: list[int] = []
 
@@ -1127,7 +1174,7 @@ def test_beta2_views_colour_the_object_and_leave_empty_space_as_rendered():
     """Issue 21: a beta^2 view composites the colour scale over the render by opacity, so a white
     background stays white instead of a wash of the scale's floor colour."""
     from flipviz.viz import palette
-    from flipviz.viz.viser_common import ScalarView, visualize_output
+    from flipviz.viz.images import ScalarView, visualize_output
 
     rgb = np.ones((2, 2, 3), np.float32)
     rgb[0, 0] = (0.2, 0.3, 0.4)  # the object's pixel

@@ -112,3 +112,38 @@ def test_the_trainer_sees_flip_only_through_its_interface():
         and n.attr in inner
     }
     assert not reads, f"the trainer reads Flip's internals: {sorted(reads)}"
+
+
+VIZ_WINGS = ("floor", "rerun", "export", "app")  # viz/: the shared floor, then its wings; the app may use them all
+
+
+def wing(mod: str) -> str:
+    """A viz module's wing: viz/rerun/, viz/export/, viz/app/, or the floor (viz/*.py)."""
+    parts = mod.split(".")
+    return parts[2] if len(parts) > 3 and parts[2] in VIZ_WINGS else "floor"
+
+
+def third_party(path: Path) -> set[str]:
+    """The top-level packages outside flipviz that `path` imports."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.add(node.module.split(".")[0])
+    return out - {"flipviz"}
+
+
+def test_viz_has_three_wings_over_a_floor_and_only_the_app_imports_viser():
+    """The floor (palette, curves, images, splats, run events) imports no wing; Rerun and the exports import
+    neither each other's nor the app's modules, nor viser: a video or a report runs without a browser app."""
+    mods, g = modules(), graph()
+    viz = {m for m in mods if m.startswith("flipviz.viz.")}
+    assert {wing(m) for m in viz} == set(VIZ_WINGS), sorted(viz)
+    assert not [p.name for p in (PKG / "viz").glob("*.py") if p.name.startswith(("viser_", "rerun_"))]
+    wrong = [
+        (m, n) for m in viz for n in g[m] if n in viz and wing(n) != wing(m) and wing(n) != "floor" and wing(m) != "app"
+    ]
+    assert not wrong, wrong
+    viser = sorted(m for m in viz if wing(m) != "app" and "viser" in third_party(mods[m]))
+    assert not viser, viser

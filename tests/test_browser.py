@@ -22,7 +22,7 @@ import viser
 from browser import CountingProxy, chromium, chromium_available, screenshot_png, wait_until
 
 from flipviz.viz import palette
-from flipviz.viz.viser_app import App, AppConfig
+from flipviz.viz.app.app import App, AppConfig
 
 pytestmark = [
     pytest.mark.browser,
@@ -369,7 +369,7 @@ def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, tmp_path_fac
     from flipviz.training.config import TrainConfig
     from flipviz.training.run import train
     from flipviz.training.saved_run import open_run
-    from flipviz.viz.viser_common import camera_from_viser
+    from flipviz.viz.app.poses import camera_from_viser
 
     b_dir = app.cfg.output.out.parent / "b-bl"  # beside A's folder: inside the app's browse roots
     train(

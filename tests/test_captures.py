@@ -335,7 +335,7 @@ def test_the_app_trains_a_capture_narrower_than_its_default_at_the_captures_widt
     """The app's 200 px default refused a 100 px capture ("flipviz does not upscale"): the app now trains
     such data at its own width, and says so; `flipviz train` still refuses a --res wider than the data."""
     from flipviz.data import TooWide, load_scene
-    from flipviz.viz.viser_app import AppConfig, check_run_input
+    from flipviz.viz.app.app import AppConfig, check_run_input
 
     cfg, scene = check_run_input(
         AppConfig.from_settings(data=driveby, mirror_plane="scene", out=tmp_path / "run", no_rrd=True)

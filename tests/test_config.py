@@ -30,6 +30,7 @@ ADDED = [
     "lr_end",
     "entropy_weight",
 ]  # since: read back at their defaults
+LATER = ["agreement_verdict"]  # since: read back as what runs saved before it did (the pooled verdict)
 
 
 def test_each_flat_flag_lands_in_its_group():
@@ -59,11 +60,12 @@ def test_settings_are_saved_flat_by_their_flag_names_and_read_back_whole():
         scene="mug", data=Path("x/y"), steps=9, plane_lr=0.25, ba_start=0.5, grid_res=(16, 32), out=Path("o")
     )
     saved = cfg.to_dict()
-    assert sorted(saved) == sorted(SAVED_BEFORE + ADDED)  # the keys every run saved before the split, and two since
+    assert sorted(saved) == sorted(SAVED_BEFORE + ADDED + LATER)  # the keys every run saved before the split, and since
     assert (saved["data"], saved["steps"], saved["plane_lr"], saved["out"]) == ("x/y", 9, 0.25, "o")
     assert run_config(saved) == cfg
-    assert len(SETTINGS) + 2 == len(SAVED_BEFORE + ADDED)  # no name in two groups (method and preset: top-level)
-    assert run_config({k: v for k, v in saved.items() if k not in ADDED}) == cfg  # a run saved before them
+    assert len(SETTINGS) + 2 == len(SAVED_BEFORE + ADDED + LATER)  # no name in two groups (method, preset: top-level)
+    before = run_config({k: v for k, v in saved.items() if k not in ADDED + LATER})  # a run saved before them
+    assert before == cfg.with_settings(agreement_verdict="pooled")
 
 
 def test_with_settings_changes_only_what_it_names_and_refuses_what_no_group_has():

@@ -24,10 +24,10 @@ from flipviz.training.evaluate import image_psnr
 from flipviz.training.run import train
 from flipviz.training.saved_run import Run, open_run
 from flipviz.viz.camera_path import orbit_path, read_keyframes, unobserved_path, write_keyframes
-from flipviz.viz.html_report import ReportConfig, write_run_report
-from flipviz.viz.rerun_compare import write_comparison
-from flipviz.viz.rerun_observer import make_rerun_observer
-from flipviz.viz.video import TITLE_H, VideoConfig, make_video, path_cameras
+from flipviz.viz.export.report import ReportConfig, write_run_report
+from flipviz.viz.export.video import TITLE_H, VideoConfig, make_video, path_cameras
+from flipviz.viz.rerun.compare import write_comparison
+from flipviz.viz.rerun.observer import make_rerun_observer
 
 pytestmark = pytest.mark.slow
 

@@ -15,10 +15,10 @@ from flipviz import cli
 from flipviz.bench import BenchConfig
 from flipviz.options import Range, base_type, check_ranges, flag, is_numeric, options, range_of
 from flipviz.training.config import TrainConfig
-from flipviz.viz.html_report import ReportConfig
-from flipviz.viz.rerun_compare import CompareConfig
-from flipviz.viz.video import VideoConfig
-from flipviz.viz.viser_app import AppConfig
+from flipviz.viz.app.app import AppConfig
+from flipviz.viz.export.report import ReportConfig
+from flipviz.viz.export.video import VideoConfig
+from flipviz.viz.rerun.compare import CompareConfig
 
 # command -> (its config class, the positional arguments it needs to parse)
 COMMANDS = {

@@ -1069,7 +1069,7 @@ def test_named_files_are_refused_before_the_scene_is_built(tmp_path, capsys, mon
     """A missing --resume and a --rrd that is a folder are refused in one line at once: before the scene
     is built and ray-cast (minutes on a busy machine), by train and by the app."""
     from flipviz.training import run as run_module
-    from flipviz.viz import viser_app
+    from flipviz.viz.app import app as viser_app
 
     def no_heavy_work(*a, **k):
         raise AssertionError("the scene was built before the refusal")

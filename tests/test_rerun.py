@@ -20,8 +20,8 @@ from rerun.chunk import RrdReader
 from flipviz.training.config import TrainConfig
 from flipviz.training.events import ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.training.trainer import Trainer
-from flipviz.viz.rerun_blueprint import entity_name
-from flipviz.viz.rerun_observer import camera_paths, has_footer, make_rerun_observer
+from flipviz.viz.rerun.blueprint import entity_name
+from flipviz.viz.rerun.observer import camera_paths, has_footer, make_rerun_observer
 
 STEPS, LOG_EVERY, IMAGES_EVERY = 10, 2, 5
 REPO = Path(__file__).resolve().parents[1]
@@ -230,7 +230,7 @@ CHILD = textwrap.dedent("""
     from flipviz.training.config import TrainConfig
     from flipviz.training.events import Observer
     from flipviz.training.trainer import Trainer
-    from flipviz.viz.rerun_observer import camera_paths, has_footer, make_rerun_observer
+    from flipviz.viz.rerun.observer import camera_paths, has_footer, make_rerun_observer
 
     class Say(Observer):
         def on_step(self, e):
@@ -290,7 +290,7 @@ def rrd_verify(path: Path, *args: str) -> subprocess.CompletedProcess:
 def test_the_finished_recording_is_compacted(tmp_path):
     """Issue 26: a run's live log is a small chunk per step and entity (a default chair run: 1849
     chunks, read 3.5x slower than compacted). The finished file is compacted in place, rows intact."""
-    from flipviz.viz.rerun_observer import optimize_recording
+    from flipviz.viz.rerun.observer import optimize_recording
 
     path = tmp_path / "recording.rrd"
     rec = rr.RecordingStream("flipviz-test", recording_id="compact")
@@ -308,7 +308,7 @@ def test_the_finished_recording_is_compacted(tmp_path):
 
 
 def test_a_recording_that_cannot_be_compacted_is_kept_as_it_is(tmp_path, caplog):
-    from flipviz.viz.rerun_observer import optimize_recording
+    from flipviz.viz.rerun.observer import optimize_recording
 
     path = tmp_path / "recording.rrd"
     path.write_bytes(b"not an rrd file" * 100)

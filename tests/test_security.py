@@ -146,7 +146,7 @@ def test_run_b_never_reads_a_dataset_outside_the_roots_nor_says_whether_it_exist
 def test_the_reports_refined_plane_reads_only_a_plane():
     """`flipviz report` draws the plane from metrics.json: anything but three finite numbers for its point
     and a non-zero normal is no plane (a crafted file gets the starting plane, not a traceback)."""
-    from flipviz.viz.html_report import refined_plane
+    from flipviz.viz.export.report import refined_plane
 
     good = {"plane": {"refined": {"point": [0, 0, 0], "normal": [1, 0, 0]}}}
     assert refined_plane(good) is not None

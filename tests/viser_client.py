@@ -21,7 +21,7 @@ import websockets
 import zstandard
 
 from flipviz.data.cameras import look_at
-from flipviz.viz.viser_common import to_viser_pose
+from flipviz.viz.app.poses import to_viser_pose
 
 _zstd = zstandard.ZstdDecompressor()
 

@@ -72,8 +72,11 @@ class BenchConfig:
     unconfident_plane: Literal["drop", "use"] = FlipConfig.unconfident_plane
     """Flip runs with an unconfident auto plane: use its mirrors (the agreement gate may drop them) or drop
     them at setup (the run then takes its B/L twin's result)."""
-    after_drop: Literal["restart", "continue"] = FlipConfig.after_drop
-    """When the agreement gate drops a run's mirrors: restart the field on the inputs, or continue it."""
+    agreement_verdict: Literal["per-mirror", "pooled"] = FlipConfig.agreement_verdict
+    """Which mirrors the agreement gate drops: each on its own ratio, or all of them on the pooled one."""
+    after_drop: Literal["rollback", "restart", "continue"] = FlipConfig.after_drop
+    """When the agreement gate drops mirrors: roll the field back to the join, restart it once all are
+    dropped, or continue it (TrainConfig.after_drop)."""
     eval_views: Literal["unobserved", "orbit"] = EvalConfig.eval_views
     """Every run's test views: the protocol's 8 unobserved (flipviz) or every orbit view it did not train on."""
     eval_tune_steps: EvalSteps = EvalConfig.eval_tune_steps

@@ -1,5 +1,5 @@
 """The bench's report.html: table.md, the PSNR chart and the qualitative grids in one self-contained
-page (images embedded; opens offline, see flipviz/viz/html_report.py)."""
+page (images embedded; opens offline, see flipviz/viz/export/report.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 from flipviz.bench.config import BenchConfig
 from flipviz.bench.figures import CHART_FILE, GAIN_FILE
 from flipviz.files import write_text
-from flipviz.viz.html_report import Figure, Section, file_uri, markdown, page
+from flipviz.viz.export.report import Figure, Section, file_uri, markdown, page
 
 REPORT_FILE = "report.html"
 

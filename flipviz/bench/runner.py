@@ -47,6 +47,7 @@ RUN_SETTINGS = (
     "device",
     "preset",
     "unconfident_plane",
+    "agreement_verdict",
     "after_drop",
     "eval_views",
     "eval_tune_steps",
@@ -67,10 +68,11 @@ NOT_IN_KEY = (
 )
 
 
-# Settings added after runs were stored: in a run's key only away from their default, so that those runs
-# keep their keys (and the bench skips them) while a run that sets one gets a key of its own.
-LATER_SETTINGS = ("eval_views", "eval_tune_steps", "eval_every", "lr_end", "entropy_weight")
 DEFAULTS = TrainConfig().to_dict()
+# Settings added after runs were stored, with the value those runs had: in a run's key only away from it, so
+# that those runs keep their keys (and the bench skips them) while a run that sets another gets a key of its own.
+LATER_SETTINGS = {k: DEFAULTS[k] for k in ("eval_views", "eval_tune_steps", "eval_every", "lr_end", "entropy_weight")}
+LATER_SETTINGS["agreement_verdict"] = "pooled"  # the gate dropped all mirrors or none before per-mirror verdicts
 
 
 @dataclass(frozen=True)
@@ -116,7 +118,7 @@ class RunSpec:
 
     def key(self, cfg: BenchConfig) -> str:
         d = {k: v for k, v in self.train_config(cfg).to_dict().items() if k not in NOT_IN_KEY}
-        d = {k: v for k, v in d.items() if k not in LATER_SETTINGS or v != DEFAULTS[k]}  # stored runs keep their keys
+        d = {k: v for k, v in d.items() if k not in LATER_SETTINGS or v != LATER_SETTINGS[k]}  # stored runs keep keys
         return (
             f"{self.scene}-{self.method.replace('+', 'u')}-c{self.config}-"
             + hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]

@@ -31,6 +31,8 @@ CSV_FIELDS = (
     "mirrors_trained",
     "mirrors_dropped_at",
     "field_restarted_at",
+    "kept_mirrors",
+    "n_mirrors",
     "plane_error_deg",
     "plane_error_offset",
     "refined_error_deg",
@@ -57,6 +59,8 @@ PLANE_KEYS = {  # results.csv column: the key in metrics.json's "plane" (Trainer
     "mirrors_trained": "trained",
     "mirrors_dropped_at": "dropped_at",
     "field_restarted_at": "restarted_at",
+    "kept_mirrors": "kept_mirrors",
+    "n_mirrors": "n_mirrors",
     "plane_error_deg": "error_deg",
     "plane_error_offset": "error_offset",
     "refined_error_deg": "refined_error_deg",
@@ -238,6 +242,7 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
             "tests within 30 deg",
             "plane confidence (Flip+U)",
             "plane error before -> after training (Flip+U)",
+            "mirrors kept (Flip+U)",
         ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for scene in scenes(rows):
@@ -254,7 +259,7 @@ def per_config_table(rows: list[dict], methods: list[str]) -> str:
                     [f"{metric(cov, 'mirror_angle_deg'):.1f}", f"{metric(cov, 'within_30'):.0%}"] if cov else ["-", "-"]
                 )
                 fu = next((r for r in main_rows(rows, scene, "flip+u") if r["config"] == n), None)
-                cells += [plane_cell(fu), plane_error_cell(fu)]
+                cells += [plane_cell(fu), plane_error_cell(fu), kept_cell(fu)]
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -268,6 +273,13 @@ def coverage_run(rows: list[dict], scene: str, config: int) -> dict | None:
     return next(
         (r for r in have if r["method"] == "flip+u" and r.get("default_flags", True)), have[0] if have else None
     )
+
+
+def kept_cell(r: dict | None) -> str:
+    """How many of a Flip+U run's mirrored views the agreement gate kept to the end ("-": runs from before
+    per-mirror verdicts, whose gate kept all or none: the plane column says which)."""
+    kept, n = (metric(r, "kept_mirrors"), metric(r, "n_mirrors")) if r else (None, None)
+    return f"{kept} of {n}" if kept is not None and n is not None else "-"
 
 
 def plane_cell(r: dict | None) -> str:

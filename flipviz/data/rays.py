@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -51,3 +52,20 @@ class RayBank:
         """n random ray indices (with replacement) among the `first` rays (None: all), drawn on the CPU
         for reproducibility."""
         return torch.randint(0, len(self) if first is None else first, (n,), generator=generator).to(self.view.device)
+
+    @cached_property
+    def counts(self) -> torch.Tensor:
+        """(V,) the rays of each view, on the CPU."""
+        return torch.bincount(self.view.cpu())
+
+    def sample_views(self, n: int, generator: torch.Generator, views: torch.Tensor) -> torch.Tensor:
+        """n random ray indices (with replacement) among the rays of `views` (increasing view indices),
+        uniform over those rays. Each view's rays are contiguous in the bank (`from_images`): a draw u among
+        the kept rays is the u-th ray of their concatenation. The views 0..k-1 draw as `sample(first=...)`."""
+        counts = self.counts
+        lengths = counts[views.cpu()]  # (K,)
+        ends = lengths.cumsum(0)  # (K,) where each kept view's rays end among the kept ones
+        u = torch.randint(0, int(ends[-1]), (n,), generator=generator)  # (n,)
+        k = torch.searchsorted(ends, u, right=True)  # (n,) which kept view each draw falls in
+        starts = counts.cumsum(0) - counts  # (V,) where each view's rays start in the bank
+        return (starts[views.cpu()][k] + u - (ends - lengths)[k]).to(self.view.device)

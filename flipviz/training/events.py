@@ -71,6 +71,8 @@ class StepEvent:
     mirror_trans_change: np.ndarray | None = None  # (M,)
     mirror_rot_err_deg: np.ndarray | None = None  # (M,) vs the exact reflected pose, when known
     mirror_trans_err: np.ndarray | None = None  # (M,)
+    mirror_ratio: np.ndarray | None = None  # (M,) each one's disagreement with the inputs (NaN: not measured yet)
+    mirror_dropped_at: tuple[int | None, ...] | None = None  # (M,) the step each was dropped at (None: kept)
     plane: Plane | None = None  # the mirror plane now, when training refines it (--refine-plane)
     plane_err_deg: float | None = None  # its angle to the scene's true plane, when known
     plane_err_offset: float | None = None  # and its offset from it (scene units)

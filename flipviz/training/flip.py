@@ -31,19 +31,24 @@ IV-C  Uncertainty (`objective`, model/objective.py): a flipped image is a true v
                   + (w / N_s) sum_j sigma(t_j)                                         (Eqn. 7)
 
 flipviz adds: the agreement gate (`Agreement`). Each batch compares the mirrored rays' squared
-      error on the object with the inputs'; once the NLL is on, mirrors above --disagreement-limit
-      stop being trained (and BA and the plane freeze), and the trainer restarts the field on the
-      inputs alone (--after-drop restart: the run ends as B/L) or trains it on (continue).
+      error on the object with the inputs'; once the NLL is on, a mirror above --disagreement-limit
+      stops being trained (--agreement-verdict per-mirror: each on its own ratio; pooled: all of them
+      on the pooled one): its rays leave the sampler and its pose freezes where it is, while the kept
+      mirrors, their BA and the plane go on. Then (--after-drop) the field goes back to where the
+      mirrors joined and trains again without the dropped ones (rollback: what they taught is gone),
+      or trains on (continue); restart continues too, but once every mirror is dropped a fresh field
+      trains the inputs alone (the run ends as B/L, bit for bit).
 
 The trainer sees `Flip` through a few calls: `poses`, `sample`, `field_lr` and `loss` inside a step,
 `after_step` after it (which answers what the trainer must do: go on, build the run again once the
-plane is estimated from the field, or restart the field after a drop: `Action`), `scalars` and
+plane is estimated from the field, or roll the field back or restart it after a drop: `Action`), `scalars` and
 `live` for its events, `report` for metrics.json, `state_dict` for checkpoints.
 Which method uses which part is `methods.py` (B/L+U puts IV-C on the input rays; Upper uses none).
 """
 
 from __future__ import annotations
 
+import copy
 import enum
 import logging
 
@@ -238,6 +243,7 @@ class Action(enum.Enum):
     GO_ON = "go on"
     JOIN = "join"  # the inputs' warm-up is over: estimate the plane from the field, build the run again around it
     RESTART_FIELD = "restart field"  # the mirrors were dropped: a fresh field on the inputs alone (--after-drop)
+    ROLL_BACK = "roll back"  # mirrors were dropped: the field as it was when the mirrors joined (--after-drop)
 
 
 class Flip:
@@ -288,34 +294,46 @@ class Flip:
         self.opt_plane = None
         if self.plane is not None:
             self.opt_plane = adam([{"params": list(self.plane.parameters()), "lr": cfg.plane_lr}], 1e-8, (0.9, 0.999))
-        self.disagreement_limit = cfg.disagreement_limit
+        self.disagreement_limit, self.verdict = cfg.disagreement_limit, cfg.agreement_verdict
         self.gate_start = self.objective.nll_start  # the NLL lets mirrors that disagree show it (Agreement)
-        self.dropped_at: int | None = None  # the step at which the mirrors stopped being trained
+        self.dropped_at: int | None = None  # the step at which the last mirror stopped being trained
+        n_mirrors = len(ts.mirror_ids)
+        self.mirror_dropped_at: list[int | None] = [None] * n_mirrors  # each mirror's verdict: the step it left
+        self.frozen = torch.eye(4, device=device).repeat(n_mirrors, 1, 1)  # (M, 4, 4) a dropped mirror's pose
         self.kept_rays = int((ts.bank.view < min(ts.mirror_ids)).sum()) if ts.mirror_ids else len(ts.bank)
+        self.rewound = 0  # steps the run went back (--after-drop rollback): the schedules' step is step - rewound
+        self._joined = copy.deepcopy(self._moving_state())  # what a rollback returns to: the join's poses, plane
 
     # -- inside a step
     def sample(self, n: int, generator: torch.Generator, step: int) -> Tensor:
-        """(n,) the rays of step `step`: any training view's, or, before the mirrors join and once they
-        are dropped, the inputs' (the bank holds the inputs' rays first, then the mirrors')."""
-        inputs_only = self.dropped_at is not None or step < self.start
-        return self.ts.bank.sample(n, generator, self.kept_rays if inputs_only else None)
+        """(n,) the rays of step `step`: any kept training view's, or, before the mirrors join and once they
+        are all dropped, the inputs' (the bank holds the inputs' rays first, then the mirrors')."""
+        inputs_only = self.dropped_at is not None or step - self.rewound < self.start
+        if inputs_only or not self.n_dropped:
+            return self.ts.bank.sample(n, generator, self.kept_rays if inputs_only else None)
+        kept = [i for i, v in enumerate(self.ts.views) if v.kind == "input"]
+        kept += [m for m, at in zip(self.ts.mirror_ids, self.mirror_dropped_at) if at is None]
+        return self.ts.bank.sample_views(n, generator, torch.as_tensor(kept))
 
     def field_lr(self, field_step: int) -> tuple[int, int]:
         """(step, steps) of the field's learning-rate decay at `field_step`. With --join-lr restart, the
         decay counts again from the step the mirrors joined: the side they bring starts at the full lr, as
         in a run that had them from step 0 (a field restarted after a drop counts from its own start)."""
-        if field_step < self.lr_from or (self.dropped_at is not None and self.after_drop == "restart"):
-            return field_step, self.steps
+        if field_step < self.lr_from or (self.dropped_at is not None and self.after_drop != "continue"):
+            return field_step, self.steps  # rolled back or restarted with no mirror left: B/L's schedule
         return field_step - self.lr_from, self.steps - self.lr_from
 
     def poses(self) -> Tensor:
         """(V, 4, 4) the current poses: inputs fixed; mirrors S_P S_P0 c2w_init Exp(xi) (IV-A, IV-B).
         Before BA starts every xi is 0, Exp(xi) the identity and c2w the initial pose: nothing to compute."""
         c2w = self.refiner() if self.ba_on else self.ts.init_c2w  # c2w_init Exp(xi)
-        if self.plane is None:
+        if self.plane is not None:
+            moved = self.plane.motion() @ c2w[self.mirror_ids]  # (M, 4, 4): the mirrors follow the plane
+            c2w = c2w.index_copy(0, self.mirror_ids, moved)
+        if not self.n_dropped:
             return c2w
-        moved = self.plane.motion() @ c2w[self.mirror_ids]  # (M, 4, 4): the mirrors follow the plane
-        return c2w.index_copy(0, self.mirror_ids, moved)
+        gone = [i for i, at in enumerate(self.mirror_dropped_at) if at is not None]
+        return c2w.index_copy(0, self.mirror_ids[gone], self.frozen[gone])  # dropped mirrors stay where they left
 
     def loss(self, out: dict[str, Tensor], target: Tensor, view: Tensor, step: int) -> Tensor:
         """IV-C on a batch whose rays come from the views `view` (R,); `step`: the field's own step
@@ -329,7 +347,7 @@ class Flip:
         """Move the poses (BA) and, after its warm-up, the plane by the gradients of step `step` (0-based,
         just taken), and clear them. Once the NLL is on, mirrors that disagree with the inputs are dropped
         (`Agreement`); the answer says what the trainer does next."""
-        self.ba_on = self.ba_on or (self.refiner is not None and step + 1 >= self.ba_start)  # from the next step
+        self.ba_on = self.ba_on or (self.refiner is not None and step + 1 - self.rewound >= self.ba_start)
         action = self._move(step)
         for opt in (self.opt_pose, self.opt_plane):
             if opt is not None:
@@ -339,28 +357,73 @@ class Flip:
         return action
 
     def _move(self, step: int) -> Action:
-        if step < self.start:
+        s = step - self.rewound  # the schedules' step (a rollback took the run back to the join)
+        if s < self.start:
             return Action.GO_ON  # the mirrors have not joined: nothing of theirs moves
-        if self.agreement is not None and self.dropped_at is None and step >= self.gate_start:
-            if self.agreement.ratio > self.disagreement_limit:
-                self.dropped_at = step + 1
-                log.warning(
-                    "step %d: the mirrored views disagree with the inputs (disagreement %.2f > %.2f, "
-                    "training/flip.py: Agreement); training without them",
-                    step + 1,
-                    self.agreement.ratio,
-                    self.disagreement_limit,
-                )
-                return Action.RESTART_FIELD if self.after_drop == "restart" else Action.GO_ON
+        if self.agreement is not None and self.dropped_at is None and s >= self.gate_start:
+            leaving = self._disagreeing()
+            if leaving:
+                return self._drop(leaving, step + 1)
         if self.dropped_at is not None:
             return Action.GO_ON  # nothing mirrored is trained: the poses and the plane stay where they were
-        if self.opt_pose is not None and step >= self.ba_start:
-            self.refiner.adjust_lr(self.opt_pose, step - self.start)
+        if self.opt_pose is not None and s >= self.ba_start:
+            self.refiner.adjust_lr(self.opt_pose, s - self.start)
             self.opt_pose.step()
-        if self.opt_plane is not None and step >= self.plane_start:
-            decay_lr(self.opt_plane, step - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)
+        if self.opt_plane is not None and s >= self.plane_start:
+            decay_lr(self.opt_plane, s - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)
             self.opt_plane.step()
         return Action.GO_ON
+
+    def _disagreeing(self) -> list[int]:
+        """The kept mirrors (indices among the mirrors) whose disagreement is over the limit: each on its own
+        ratio (per-mirror; one not measured yet stays), or all of them on the pooled one (pooled)."""
+        kept = [i for i, at in enumerate(self.mirror_dropped_at) if at is None]
+        if self.verdict == "pooled":
+            return kept if self.agreement.ratio > self.disagreement_limit else []
+        ratios = self.agreement.ratios
+        return [i for i in kept if ratios[i] > self.disagreement_limit]
+
+    def _drop(self, leaving: list[int], step: int) -> Action:
+        """Mirrors `leaving` stop being trained from step `step` on: their rays leave the sampler, their poses
+        freeze where they are. Then the field goes back to the join (rollback), a fresh one trains the inputs
+        once no mirror is left (restart), or the field trains on (continue)."""
+        with torch.no_grad():
+            now = self.poses()[self.mirror_ids].detach()  # (M, 4, 4)
+        ratios = self.agreement.ratios
+        for i in leaving:
+            self.mirror_dropped_at[i], self.frozen[i] = step, now[i]
+        left = self.n_dropped == len(self.mirror_dropped_at)
+        self.dropped_at = step if left else None
+        log.warning(
+            "step %d: %s disagree with the inputs (disagreement %s > %.2f, training/flip.py: Agreement); %s",
+            step,
+            "the mirrored views" if self.verdict == "pooled" else f"mirrored views {', '.join(map(str, leaving))}",
+            f"{self.agreement.ratio:.2f}"
+            if self.verdict == "pooled"
+            else ", ".join(f"{ratios[i]:.2f}" for i in leaving),
+            self.disagreement_limit,
+            "training without any" if left else f"training on with {len(self.mirror_dropped_at) - self.n_dropped}",
+        )
+        if self.after_drop == "rollback":
+            self._roll_back(step)
+            return Action.ROLL_BACK
+        return Action.RESTART_FIELD if left and self.after_drop == "restart" else Action.GO_ON
+
+    def _roll_back(self, step: int) -> None:
+        """From step `step` on, the schedules count again from the join (the trainer's field goes back there
+        too, Action.ROLL_BACK): BA's poses, the plane and their optimisers as they were then, the running
+        errors measured afresh. The verdicts stay."""
+        self._load_moving(copy.deepcopy(self._joined))
+        self.ba_on = self.refiner is not None and self.ba_start <= self.start
+        self.rewound = step - self.start
+        if self.dropped_at is None:  # the kept mirrors are measured again; with none left, the last measure stays
+            a = self.agreement
+            a.mirror = a.input = float("nan")
+            a.per_mirror = torch.full_like(a.per_mirror, float("nan"))
+
+    @property
+    def n_dropped(self) -> int:
+        return sum(at is not None for at in self.mirror_dropped_at)
 
     # -- what it shows
     def scalars(self) -> dict[str, float]:
@@ -373,6 +436,7 @@ class Flip:
                 "mse_input": a.input / 3.0,
                 "disagreement": a.ratio,
                 "mirrors_trained": float(self.dropped_at is None),
+                "mirrors_kept": float(len(self.mirror_dropped_at) - self.n_dropped),
             }
         return {**self.lrs(), **agree}
 
@@ -406,7 +470,13 @@ class Flip:
     def live(self) -> dict:
         """A StepEvent's mirror fields: the mirrored poses now, their change and, where known, their error;
         the refined plane and its error."""
-        return self._pose_report() | self._plane_now()
+        return self._pose_report() | self._plane_now() | self._verdicts()
+
+    def _verdicts(self) -> dict:
+        """Each mirror's disagreement now and the step it was dropped at (StepEvent's fields); {} without mirrors."""
+        if self.agreement is None:
+            return {}
+        return {"mirror_ratio": self.agreement.ratios, "mirror_dropped_at": tuple(self.mirror_dropped_at)}
 
     def report(self, tests: list[Camera]) -> dict:
         """Flip's part of metrics.json: the mirrors' coverage of the `tests` cameras (every method: B/L rows
@@ -432,7 +502,13 @@ class Flip:
         if self.agreement is not None:  # the agreement gate
             rep["disagreement"] = self.agreement.ratio
             rep["disagreement_per_mirror"] = self.agreement.ratios.tolist()  # each mirror's own, same limit
-            rep["dropped_at"] = self.dropped_at
+            rep["dropped_at"] = self.dropped_at  # the step the last mirror left
+            rep["mirror_dropped_at"] = list(self.mirror_dropped_at)  # each mirror's (None: kept to the end)
+            rep["n_mirrors"], rep["kept_mirrors"] = (
+                len(self.mirror_dropped_at),
+                len(self.mirror_dropped_at) - self.n_dropped,
+            )
+            rep["verdict"], rep["after_drop"], rep["rewound_steps"] = self.verdict, self.after_drop, self.rewound
             rep["trained"] = self.dropped_at is None
             restarted = self.dropped_at is not None and self.after_drop == "restart"
             rep["restarted_at"] = self.dropped_at if restarted else None  # the field restarted on the inputs
@@ -468,29 +544,42 @@ class Flip:
         return rep
 
     # -- checkpoints
+    def _moving_state(self) -> dict:
+        """BA's poses, the plane and their optimisers (what a rollback restores)."""
+        parts = {"poses": self.refiner, "opt_pose": self.opt_pose, "plane": self.plane, "opt_plane": self.opt_plane}
+        return {key: obj.state_dict() if obj is not None else None for key, obj in parts.items()}
+
+    def _load_moving(self, state: dict) -> None:
+        parts = {"poses": self.refiner, "opt_pose": self.opt_pose, "plane": self.plane, "opt_plane": self.opt_plane}
+        for key, obj in parts.items():
+            if obj is not None and state.get(key) is not None:
+                obj.load_state_dict(state[key])
+
     def state_dict(self) -> dict:
         return {
-            "poses": self.refiner.state_dict() if self.refiner is not None else None,
-            "opt_pose": self.opt_pose.state_dict() if self.opt_pose is not None else None,
-            "plane": self.plane.state_dict() if self.plane is not None else None,
-            "opt_plane": self.opt_plane.state_dict() if self.opt_plane is not None else None,
+            **self._moving_state(),
             "ba_on": self.ba_on,
             "agreement": {
                 "mirror": a.mirror,
                 "input": a.input,
                 "per_mirror": a.per_mirror.tolist(),
                 "dropped_at": self.dropped_at,
+                "mirror_dropped_at": list(self.mirror_dropped_at),
+                "frozen": self.frozen.cpu(),
+                "rewound": self.rewound,
             }
             if (a := self.agreement)
             else None,
         }
 
+    @property
+    def field_restarted(self) -> bool:
+        """A fresh field (no variance head) trains the inputs: every mirror dropped under --after-drop restart."""
+        return self.dropped_at is not None and self.after_drop == "restart"
+
     def load_state_dict(self, state: dict) -> None:
         """What `state_dict` wrote (a checkpoint from before the plane was refined has no plane: it stays P0)."""
-        parts = {"poses": self.refiner, "opt_pose": self.opt_pose, "plane": self.plane, "opt_plane": self.opt_plane}
-        for key, obj in parts.items():
-            if obj is not None and state.get(key) is not None:
-                obj.load_state_dict(state[key])
+        self._load_moving(state)
         moved = self.refiner is not None and bool(self.refiner.xi.detach().abs().sum() > 0)
         saved = state.get("ba_on")  # saved since poses() computes BA's poses only once it is on
         self.ba_on = self.ba_on or (saved if isinstance(saved, bool) else moved)
@@ -504,6 +593,25 @@ class Flip:
                     raise ValueError(f"{len(each)} mirrors' agreement for {len(self.agreement.per_mirror)} mirrors")
                 self.agreement.per_mirror = each
             dropped = agree.get("dropped_at")
-            if dropped is not None and (isinstance(dropped, bool) or not isinstance(dropped, int)):
+            if dropped is not None and not is_step(dropped):
                 raise ValueError(f"dropped_at {dropped!r} is not a step")
             self.dropped_at = dropped
+            n = len(self.mirror_dropped_at)  # checkpoints from before per-mirror verdicts: all or none
+            each = agree.get("mirror_dropped_at", [dropped] * n)
+            if not isinstance(each, list) or len(each) != n or not all(at is None or is_step(at) for at in each):
+                raise ValueError(f"mirror_dropped_at {each!r} is not a step or None for each of {n} mirrors")
+            frozen = agree.get("frozen")
+            if frozen is not None:
+                self.frozen = torch.as_tensor(frozen, dtype=torch.float32).to(self.frozen.device).reshape(n, 4, 4)
+            elif any(at is not None for at in each):  # an old checkpoint: they stopped where its poses are
+                with torch.no_grad():
+                    self.frozen = self.poses()[self.mirror_ids].detach()
+            self.mirror_dropped_at = list(each)
+            rewound = agree.get("rewound", 0)
+            if not is_step(rewound):
+                raise ValueError(f"rewound {rewound!r} is not a step count")
+            self.rewound = rewound
+
+
+def is_step(x: object) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and x >= 0

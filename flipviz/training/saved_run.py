@@ -89,6 +89,7 @@ def run_config(settings: dict) -> TrainConfig:
     names = set(TrainConfig().settings())
     kw = {k: v for k, v in settings.items() if k in names}
     kw.setdefault("unconfident_plane", "use")  # saved before the option existed: any plane was trained with
+    kw.setdefault("agreement_verdict", "pooled")  # saved before per-mirror verdicts: the gate dropped all or none
     try:
         for k in ("data", "out", "rrd", "resume", "plane_file"):
             if kw.get(k) is not None:
@@ -132,7 +133,8 @@ def open_run(
         if spec.mirrors and poses is None:  # dropped at setup: its plane was doubted (--unconfident-plane drop)
             spec = spec.without_mirrors()
         start, step = counter(state, "field_start", 0), counter(state, "step")
-        model = fresh_model(cfg, scene, with_beta=spec.uses_beta and start == 0)  # a restarted field has none
+        restarted = start > 0 and cfg.flip.after_drop == "restart"  # a fresh field on the inputs: no beta head
+        model = fresh_model(cfg, scene, with_beta=spec.uses_beta and not restarted)  # a rollback keeps it
         model.load_state_dict(state["model"])
         seconds = float(state.get("train_seconds", 0.0))
     except MISFIT as e:

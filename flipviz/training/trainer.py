@@ -12,11 +12,13 @@ One step (`_train_step`), a NeRF step with Just Flip's hooks (flip.py, paper Sec
     out      = render(o, d): rgb (R, 3), beta2, sigma_mean (R,)
     loss     = flip.loss(out, target, view, step) + regulariser       (model/objective.py)
 then the field's optimiser steps, and `flip.after_step` moves what Flip adds (poses, plane) and says
-what comes next (`_act`: go on; build the run again around the field; restart the field).
+what comes next (`_act`: go on; build the run again around the field; restart the field or roll it
+back to where the mirrors joined).
 """
 
 from __future__ import annotations
 
+import copy
 import logging
 import threading
 import time
@@ -102,7 +104,7 @@ class Trainer:
         self._adopt(rs)
         self.opt_field = self.model.make_optimizer()
         self.step = 0
-        self.field_start = 0  # the step the field began at: 0, or the agreement gate's drop (--after-drop restart)
+        self.field_start = 0  # the field's step is step - field_start: moved by a restart or a rollback (--after-drop)
         self.train_seconds = 0.0  # spent in training steps (not in pauses or image renders)
         self._observers: list[Observer] = []
         self._lock = threading.RLock()  # one lock for a training step and for render()
@@ -111,6 +113,7 @@ class Trainer:
         self._stop = threading.Event()
         while self.step < self.flip.warm_up:  # steps before the run is whole (flip.py: auto's plane from the field)
             self._step()
+        self._joined = self._snapshot()  # where the mirrors joined: what Action.ROLL_BACK returns to
         if self.plane_estimate is not None:
             artifacts.write_plane(self.run_dir, self.plane_estimate)
         if cfg.output.resume is not None:
@@ -233,6 +236,24 @@ class Trainer:
                 steps,
             )
             self._restart(self.step)
+        elif action is Action.ROLL_BACK:
+            log.warning("step %d: the field goes back to step %d, where the mirrors joined", self.step, self.flip.start)
+            self._roll_back()
+
+    def _snapshot(self) -> dict:
+        """The field, its optimiser and the sampler as they are now (a copy)."""
+        state = {"model": self.model.state_dict(), "opt_field": self.opt_field.state_dict()}
+        return copy.deepcopy(state) | {"field_step": self.step - self.field_start, "rng": self._gen.get_state()}
+
+    def _roll_back(self) -> None:
+        """The field, its optimiser and the sampler as `_snapshot` kept them; the run grows by the steps since."""
+        snap = self._joined
+        with signals_deferred():
+            self.model.load_state_dict(copy.deepcopy(snap["model"]))
+            self.opt_field = self.model.make_optimizer()
+            self.opt_field.load_state_dict(copy.deepcopy(snap["opt_field"]))
+            self._gen.set_state(snap["rng"])
+            self.field_start = self.step - snap["field_step"]
 
     def _restart(self, start: int) -> None:
         """A fresh field, seeded as B/L's, from step `start` for the full cfg.engine.steps (the run then ends
@@ -394,13 +415,14 @@ class Trainer:
             if key in theirs and theirs[key] != mine[key] and not (key == "scene" and self.cfg.data.path):
                 raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {mine[key]!r}")
         try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
+            self.flip.load_state_dict(state)
             start = ckpt.counter(state, "field_start", 0)
-            if start > 0:  # the field was restarted after the mirrors were dropped: no variance head
+            if self.flip.field_restarted:  # a fresh field after the mirrors were dropped: no variance head
                 self._new_field(start)
+            self.field_start = start  # a restart's or a rollback's (flip.py: Action)
             self.model.load_state_dict(state["model"])
             self.opt_field = self.model.make_optimizer()
             self.opt_field.load_state_dict(state["opt_field"])
-            self.flip.load_state_dict(state)
             self.step, self.train_seconds = ckpt.counter(state, "step"), float(state.get("train_seconds", 0.0))
             if state.get("rng") is not None:
                 self._gen.set_state(state["rng"])

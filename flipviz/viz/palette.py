@@ -29,6 +29,7 @@ TRUE_PLANE: RGB = CAMERA["mirror_true"]
 SPHERE: RGB = (120, 160, 255)
 PROBE: RGB = (0, 200, 200)  # cyan: where the pixel probe's ray meets the surface
 TRAJECTORY: RGB = CAMERA["mirror"]
+DROPPED: RGB = (190, 190, 190)  # pale grey: a mirrored camera the agreement gate dropped (training/flip.py)
 
 
 def hex_color(rgb: RGB) -> str:
@@ -90,6 +91,7 @@ LEGEND: tuple[tuple[tuple[RGB, ...], str], ...] = (  # (colour(s), what): every 
     ((CAMERA["test"],), "unobserved test cameras"),
     ((CAMERA["mirror"],), "mirrored cameras (BA-refined), their trails, the mirror plane"),
     ((CAMERA["mirror_init"],), "mirrored cameras for a plane you moved (preview)"),
+    ((DROPPED,), "mirrored cameras dropped for disagreeing with the inputs"),
     ((CAMERA["mirror_true"],), "exact reflections, the true symmetry plane"),
     ((CAMERA["upper"],), "Upper-bound cameras"),
     ((CAMERA["novel"],), "your novel cameras and keyframes"),

@@ -5,8 +5,8 @@
   where no true plane is known, its change from the initial pose (what BA moved);
 - the mirror plane's angle and offset error against the true plane, or its change from where
   training started it (only for runs that refine the plane);
-- the mirrors' disagreement with the inputs (training/flip.py: Agreement), against the limit above
-  which they are dropped, and the step at which they were.
+- the mirrors' disagreement with the inputs (training/flip.py: Agreement), pooled and each mirror's
+  own (up to its drop), against the limit above which they are dropped, and the step each one was.
 
 The trainer's thread adds (`add_step`, `add_test`); the app's UI tick reads thinned copies as uPlot
 data: one x column (the steps) and one column per series, NaN where a series has no value (uPlot
@@ -51,14 +51,24 @@ class RunCurves:
     limit: float = float("inf")  # --disagreement-limit
     agree_steps: list[float] = field(default_factory=list)
     disagreement: list[float] = field(default_factory=list)
-    dropped_at: int | None = None  # the step at which the agreement gate dropped the mirrors
+    mirror_ratio: list[np.ndarray] = field(default_factory=list)  # (M,) per agreement step, NaN once dropped
+    dropped_at: int | None = None  # the step at which the agreement gate had dropped every mirror
+    mirror_dropped_at: tuple[int | None, ...] = ()  # (M,) the step each mirror was dropped at (None: kept)
+    drop_ratio: dict[int, float] = field(default_factory=dict)  # mirror -> its ratio when it was dropped
+    after_drop: str = "restart"  # what the run does after a drop (--after-drop)
     planned_steps: int = 0  # the run's steps at setup
-    restarted: bool = False  # the field restarted after the drop (--after-drop restart: the run grew longer)
+    restarted: bool = False  # the run grew longer after a drop (--after-drop restart or rollback)
 
     @classmethod
     def for_run(cls, setup: SetupEvent) -> RunCurves:
-        limit = setup.cfg.flip.disagreement_limit
-        return cls(start_plane=setup.plane, true_plane=setup.true_plane, limit=limit, planned_steps=setup.total_steps)
+        f = setup.cfg.flip
+        return cls(
+            start_plane=setup.plane,
+            true_plane=setup.true_plane,
+            limit=f.disagreement_limit,
+            after_drop=f.after_drop,
+            planned_steps=setup.total_steps,
+        )
 
     @property
     def plane_vs_truth(self) -> bool:
@@ -74,10 +84,18 @@ class RunCurves:
             self.mirror_vs_truth = ev.mirror_rot_err_deg is not None
             self.mirror_steps.append(s)
             self.mirror_deg.append(np.asarray(deg, np.float64))
+        if ev.mirror_dropped_at is not None:
+            for i, at in enumerate(ev.mirror_dropped_at):
+                if at is not None and i not in self.drop_ratio and self.mirror_ratio:
+                    self.drop_ratio[i] = float(self.mirror_ratio[-1][i])  # its last measure before it left
+            self.mirror_dropped_at = tuple(ev.mirror_dropped_at)
         d = ev.scalars.get("disagreement")
         if d is not None and np.isfinite(d):  # never a leading NaN: uPlot's range would break
             self.agree_steps.append(s)
             self.disagreement.append(float(d))
+            if ev.mirror_ratio is not None and len(ev.mirror_ratio) == len(self.mirror_dropped_at):
+                gone = np.array([at is not None and at < s for at in self.mirror_dropped_at])
+                self.mirror_ratio.append(np.where(gone, np.nan, np.asarray(ev.mirror_ratio, np.float64)))
         if ev.scalars.get("mirrors_trained") == 0.0 and self.dropped_at is None:
             self.dropped_at = int(ev.step)
         self.restarted = self.restarted or ev.total_steps > self.planned_steps > 0
@@ -119,13 +137,15 @@ class RunCurves:
         return (np.asarray(self.mirror_steps)[idx], *deg.T)
 
     def agreement_data(self) -> tuple[np.ndarray, ...]:
-        """(steps, disagreement, the limit), ratios of squared errors."""
+        """(steps, disagreement, the limit, then each mirror's own ratio where measured), ratios of squared
+        errors."""
         if not self.agree_steps:
             return ()
         idx = thin(len(self.agree_steps))
         x = np.asarray(self.agree_steps)[idx]
         limit = np.full(len(x), self.limit if np.isfinite(self.limit) else np.nan)
-        return x, np.asarray(self.disagreement)[idx], limit
+        each = tuple(np.stack(self.mirror_ratio)[idx].T) if len(self.mirror_ratio) == len(self.agree_steps) else ()
+        return x, np.asarray(self.disagreement)[idx], limit, *each
 
     def plane_data(self) -> tuple[np.ndarray, ...]:
         """(steps, angle in degrees, offset in scene units)."""

@@ -245,7 +245,7 @@ def run_page(cfg: ReportConfig) -> str:
 
     from flipviz.training.saved_run import open_run
     from flipviz.viz.camera_path import unobserved_path
-    from flipviz.viz.video import GifFrames, GroundTruth, compose_row, render_frames
+    from flipviz.viz.export.video import GifFrames, GroundTruth, compose_row, render_frames
 
     run = open_run(cfg.run, cfg.device)
     mpath = run.run_dir / "metrics.json"

@@ -15,8 +15,8 @@ import viser
 
 from flipviz.data.cameras import Camera
 from flipviz.viz import palette
+from flipviz.viz.app.render import RenderWorker, Snapped
 from flipviz.viz.run_view import RunView
-from flipviz.viz.viser_render import RenderWorker, Snapped
 
 HELP = "_Pixel probe: snap to a view, then click a pixel of it in the 3D view._"
 

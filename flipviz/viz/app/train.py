@@ -13,7 +13,7 @@ from flipviz.data.scenes import SCENES
 from flipviz.training.config import METHODS, PRESETS
 from flipviz.training.events import SetupEvent, StepEvent, split_label
 from flipviz.viz import palette
-from flipviz.viz.viser_guard import guard_choice, guard_number
+from flipviz.viz.app.guard import guard_choice, guard_number
 
 DATA_FOLDER = "(a data folder)"
 CONFIGS = tuple(str(i) for i in range(1, 9))

@@ -23,7 +23,7 @@ import tyro
 
 from flipviz.errors import UserError
 from flipviz.files import atomic_path, free_bytes, need_space
-from flipviz.viz.rerun_blueprint import STEP, entity_name
+from flipviz.viz.rerun.blueprint import STEP, entity_name
 
 APP_ID = "flipviz-compare"
 
@@ -156,7 +156,7 @@ def run_compare(cfg: CompareConfig) -> int:
     """`flipviz compare`: write the merged recording; with --serve, show it until Ctrl-C."""
     viewer = None
     if cfg.serve:
-        from flipviz.viz.rerun_viewer import RerunWebViewer
+        from flipviz.viz.rerun.viewer import RerunWebViewer
 
         viewer = RerunWebViewer.start()
     try:

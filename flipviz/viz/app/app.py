@@ -1,7 +1,7 @@
 """The browser app: train a run in the background and watch / probe it with viser.
 
 `run_app(cfg)` serves viser on cfg.host:cfg.port and trains with the real `Trainer` in a
-background thread (viz/training_session.py: start, restart, stop; recording Rerun unless
+background thread (viz/app/session.py: start, restart, stop; recording Rerun unless
 --no-rrd). The app observes the trainer through `RunEvents` (viz/run_events.py): events are copied
 in the trainer's thread and drawn by a UI thread a few times a second; it acts on training only
 through the trainer's public methods (render, point_cloud, pause, resume, stop).
@@ -42,18 +42,18 @@ from flipviz.training.config import DataConfig, EngineConfig, FlatFlags, TrainCo
 from flipviz.training.events import SetupEvent, StepEvent
 from flipviz.training.setup import run_split
 from flipviz.viz import palette
-from flipviz.viz.gui_thread import on_gui_thread, thread_safe_pushes
+from flipviz.viz.app.compare import ComparePanel
+from flipviz.viz.app.gui_thread import on_gui_thread, thread_safe_pushes
+from flipviz.viz.app.mirror.tab import MirrorLesson
+from flipviz.viz.app.novel import NovelCameras, SnapToView
+from flipviz.viz.app.poses import plane_to_arg
+from flipviz.viz.app.preview import LivePreview
+from flipviz.viz.app.probe import PixelProbe
+from flipviz.viz.app.render import RenderWorker, ViewportRenderer
+from flipviz.viz.app.scene import GROUPS, RunScene
+from flipviz.viz.app.session import TrainingSession
+from flipviz.viz.app.train import RunChoice, TrainPanel
 from flipviz.viz.run_events import RunEvents
-from flipviz.viz.training_session import TrainingSession
-from flipviz.viz.viser_common import plane_to_arg
-from flipviz.viz.viser_compare import ComparePanel
-from flipviz.viz.viser_mirror import MirrorLesson
-from flipviz.viz.viser_novel import NovelCameras, SnapToView
-from flipviz.viz.viser_preview import LivePreview
-from flipviz.viz.viser_probe import PixelProbe
-from flipviz.viz.viser_render import RenderWorker, ViewportRenderer
-from flipviz.viz.viser_scene import GROUPS, RunScene
-from flipviz.viz.viser_train import RunChoice, TrainPanel
 
 log = logging.getLogger("flipviz.app")
 
@@ -263,13 +263,13 @@ class App:
         self.preview.remove_client(client.client_id)
 
     def _snap_client(self, client: viser.ClientHandle, cam: Camera, reference: np.ndarray | None, name: str) -> None:
-        from flipviz.viz.viser_render import Snapped
+        from flipviz.viz.app.render import Snapped
 
         self.scene.hide_near(cam.center, 0.35 * float(self.setup.sphere_radius) if self.setup else 1.0)
         self.mirror.set_snapped(True)
         self.views.snap(client.client_id, Snapped(cam, reference, name))
 
-    # ---- the run: viz/training_session.py owns its lifecycle ----------------------------------
+    # ---- the run: viz/app/session.py owns its lifecycle ----------------------------------
     @property
     def cfg(self) -> AppConfig:
         return self.session.cfg
@@ -417,6 +417,8 @@ class App:
         if news.step is not None and now - self._last_mirrors > 0.5 and news.step.mirror_c2w is not None:
             self.scene.update_mirrors(news.step.mirror_c2w)
             self._last_mirrors = now
+        if news.step is not None and news.step.mirror_dropped_at is not None:
+            self.scene.set_dropped(news.step.mirror_dropped_at)
         if now - self._last_plot > 1.0:
             with self.events.curves() as curves:
                 if curves is not None:

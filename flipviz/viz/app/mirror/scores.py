@@ -7,7 +7,7 @@
                    as the frustums' colours; what the mirrored frustums show (the flipped image, its
                    disagreement with the model, or beta^2)
 
-The lesson (viser_mirror.py) decides what is scored (`Scoring`): the preview's cameras, while you move the
+The lesson (app/mirror/tab.py) decides what is scored (`Scoring`): the preview's cameras, while you move the
 plane or look at a doubted plane's mirrors, else the mirrored cameras training uses now.
 """
 
@@ -24,11 +24,12 @@ from flipviz.data.images import to_uint8
 from flipviz.training.evaluate import image_psnr
 from flipviz.training.events import ImagesEvent
 from flipviz.viz import palette
+from flipviz.viz.app.guard import guard_choice
+from flipviz.viz.app.poses import to_viser_pose
+from flipviz.viz.app.render import RenderWorker
+from flipviz.viz.app.scene import RunScene
+from flipviz.viz.images import error_map, resize_nearest, thumbnail
 from flipviz.viz.run_view import RunView
-from flipviz.viz.viser_common import error_map, resize_nearest, thumbnail, to_viser_pose
-from flipviz.viz.viser_guard import guard_choice
-from flipviz.viz.viser_render import RenderWorker
-from flipviz.viz.viser_scene import RunScene
 
 FRUSTUM_IMAGES = ("flipped image", "disagreement", "beta^2")
 

@@ -36,7 +36,7 @@ from flipviz.training.evaluate import image_psnr
 from flipviz.training.events import SetupEvent
 from flipviz.viz import palette
 from flipviz.viz.camera_path import keyframe_path, orbit_path, read_keyframes, unobserved_path
-from flipviz.viz.viser_common import error_map
+from flipviz.viz.images import error_map
 
 PANELS = ("render", "ground truth", "|error|", "beta^2")
 TITLE_H = 22  # pixels of the caption strip above each row

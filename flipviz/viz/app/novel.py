@@ -12,10 +12,11 @@ from flipviz.data.cameras import Camera, look_at
 from flipviz.data.images import to_uint8
 from flipviz.training.evaluate import image_psnr, structure_scores
 from flipviz.viz import palette
+from flipviz.viz.app.guard import guard_choice
+from flipviz.viz.app.poses import camera_from_viser, to_viser_pose
+from flipviz.viz.app.render import RenderWorker
+from flipviz.viz.images import OUTPUTS, error_map, upscale, visualize_output
 from flipviz.viz.run_view import RunView
-from flipviz.viz.viser_common import OUTPUTS, camera_from_viser, error_map, to_viser_pose, upscale, visualize_output
-from flipviz.viz.viser_guard import guard_choice
-from flipviz.viz.viser_render import RenderWorker
 
 BLANK = np.full((48, 48, 3), 235, np.uint8)  # placeholder until the first render
 MAX_NOVEL = 16  # novel cameras at once (shared by all clients)

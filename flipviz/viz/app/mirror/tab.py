@@ -9,9 +9,9 @@ of a mirrored view is the PSNR of the current model rendered from that camera ag
 flipped image: low where the symmetry assumption fails.
 
 The tab's other parts live apart: the preview frustums and the consistency scores
-(viser_mirror_scores.py: PlanePreview, MirrorScores), the estimated plane (viser_estimate.py:
+(app/mirror/scores.py: PlanePreview, MirrorScores), the estimated plane (app/estimate.py:
 PlaneEstimatePanel), the charts over training with the agreement gate's verdict and the refined
-plane's trail (viser_mirror_curves.py: MirrorCurves, PlaneTrail).
+plane's trail (app/mirror/curves.py: MirrorCurves, PlaneTrail).
 """
 
 from __future__ import annotations
@@ -29,14 +29,14 @@ from flipviz.geometry import flip_image, mirror_cameras_for_plane, mirror_plane
 from flipviz.geometry.sphere import Sphere
 from flipviz.training.events import SetupEvent
 from flipviz.viz import palette
+from flipviz.viz.app.estimate import PlaneEstimatePanel
+from flipviz.viz.app.guard import guard_number, guard_vector
+from flipviz.viz.app.mirror.curves import MirrorCurves, PlaneTrail
+from flipviz.viz.app.mirror.scores import MirrorScores, PlanePreview, Scoring
+from flipviz.viz.app.poses import plane_from_pose, plane_wxyz
+from flipviz.viz.app.render import RenderWorker
+from flipviz.viz.app.scene import RunScene, plane_quad
 from flipviz.viz.run_view import RunView
-from flipviz.viz.viser_common import plane_from_pose, plane_wxyz
-from flipviz.viz.viser_estimate import PlaneEstimatePanel
-from flipviz.viz.viser_guard import guard_number, guard_vector
-from flipviz.viz.viser_mirror_curves import MirrorCurves, PlaneTrail
-from flipviz.viz.viser_mirror_scores import MirrorScores, PlanePreview, Scoring
-from flipviz.viz.viser_render import RenderWorker
-from flipviz.viz.viser_scene import RunScene, plane_quad
 
 LESSON = """**What the mirror assumes.** Just Flip assumes the object is *mirror-symmetric* about a
 plane. Each input image is flipped left-right and given a pose: its camera reflected through the
@@ -203,7 +203,7 @@ class MirrorLesson:
         self.typed = TypedPlane(gui, on_plane=self.set_plane, on_error=self._cannot)
         reset_btn = gui.add_button("Reset plane", icon=viser.Icon.REFRESH)
         restart_btn = gui.add_button("Restart with this plane", icon=viser.Icon.FLIP_VERTICAL, color="orange")
-        # the parts kept apart: viser_mirror_scores.py, viser_mirror_curves.py, viser_estimate.py
+        # the parts kept apart: app/mirror/scores.py, app/mirror/curves.py, app/estimate.py
         self.consistency = MirrorScores(gui, worker, run, scene, self.show_anyway, self._scoring)
         self.curves = MirrorCurves(server, verdict=gate_text)  # charts over training
         self.estimate = PlaneEstimatePanel(server, run, lambda: self.train_plane, self.set_plane)

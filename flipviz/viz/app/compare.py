@@ -11,7 +11,7 @@ next to this one (same scene, views and steps, in its own folder). Every browser
 Moving the camera re-renders both. A snapped view also scores both against its ground truth.
 The camera path records your browser's camera as keyframes and renders them (and the ground truth,
 |error| and beta^2) to an MP4 in the run's folder, for A alone or A and B together
-(flipviz/viz/video.py); keyframes.json can be rendered again with `flipviz video RUN --path`.
+(flipviz/viz/export/video.py); keyframes.json can be rendered again with `flipviz video RUN --path`.
 """
 
 from __future__ import annotations
@@ -33,12 +33,13 @@ from flipviz.training.checkpoint import CHECKPOINT_NAME
 from flipviz.training.config import METHOD_LABELS, METHODS, TrainConfig, with_preset
 from flipviz.training.evaluate import image_psnr
 from flipviz.viz import palette
+from flipviz.viz.app.guard import bounded, guard_choice, guard_number
+from flipviz.viz.app.poses import camera_from_viser, to_viser_pose
+from flipviz.viz.app.session import TrainingSession, train_config
+from flipviz.viz.app.train import SETTING_HINT, SETTINGS
 from flipviz.viz.camera_path import KEYFRAMES_FILE, write_keyframes
+from flipviz.viz.images import error_map, view_depth
 from flipviz.viz.run_view import RunView
-from flipviz.viz.training_session import TrainingSession, train_config
-from flipviz.viz.viser_common import camera_from_viser, error_map, to_viser_pose, view_depth
-from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
-from flipviz.viz.viser_train import SETTING_HINT, SETTINGS
 
 log = logging.getLogger("flipviz.app")
 
@@ -412,7 +413,7 @@ class ComparePanel:
 
     def _render_video(self, folder: Path, setup, keys: list[Camera], res: int) -> None:
         from flipviz.viz.camera_path import keyframe_path
-        from flipviz.viz.video import GroundTruth, render_frames, write_mp4
+        from flipviz.viz.export.video import GroundTruth, render_frames, write_mp4
 
         try:
             write_keyframes(folder / KEYFRAMES_FILE, keys)

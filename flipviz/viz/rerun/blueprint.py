@@ -1,6 +1,6 @@
 """The default Rerun layout of a run: the 3D scene on the left; image grids and curves on the right.
 
-Entity layout written by `flipviz.viz.rerun_observer` (all names sanitised by `entity_name`):
+Entity layout written by `flipviz.viz.rerun.observer` (all names sanitised by `entity_name`):
     world                              z-up world coordinates
     world/sphere, world/mirror_plane   fitted sphere, mirror plane (+ /normal arrow), true plane
     world/cameras/<kind>/<name>        static cameras: input, test, mirror_init, mirror_true, upper

@@ -1,6 +1,7 @@
 """The Mirror tab over training: how far BA moved each mirrored camera (or its error against the
 exact reflection), the refined plane's angle and offset, and the agreement gate's ratio of mirrored
-to input error with its limit; the gate's verdict in words when it drops them (`MirrorCurves`); and
+to input error, pooled and each mirror's, with its limit; the gate's verdicts in words as it drops
+mirrors (`MirrorCurves`); and
 the refined plane in the 3D view, the trail of its normal's tip, with its motion and error in words
 (`PlaneTrail`).
 
@@ -24,7 +25,12 @@ POSE_TITLES = {
     False: "Mirrored cameras: rotation BA applied (deg)",
 }  # no true plane: what BA moved
 PLANE_TITLES = {True: "Mirror plane: error vs the true plane", False: "Mirror plane: change from its start"}
-AGREE_TITLE = "Mirrors vs inputs: squared error ratio on the object (dropped above the limit)"
+AGREE_TITLE = "Mirrors vs inputs: squared error ratio on the object, all and each (dropped above the limit)"
+AFTER_DROP = {  # what the run does once mirrors are dropped (--after-drop)
+    "rollback": "The field went back to where the mirrors joined and trains again without {them}.",
+    "restart": "Training goes on without {them}; once none is left, a fresh field trains the inputs alone, as B/L.",
+    "continue": "Training goes on without {them}; what they taught the field stays.",
+}
 
 
 class MirrorCurves:
@@ -32,6 +38,7 @@ class MirrorCurves:
 
     def __init__(self, server: viser.ViserServer, verdict: viser.GuiMarkdownHandle) -> None:
         self.server, self.verdict = server, verdict
+        self.names: list[str] = []  # the mirrored views' names (their inputs')
         self.folder = server.gui.add_folder("Over training", expand_by_default=True)
         self.poses: viser.GuiUplotHandle | None = None
         self.plane: viser.GuiUplotHandle | None = None
@@ -48,6 +55,7 @@ class MirrorCurves:
         self._plotted = ((), (), ())
         self.verdict.content = ""
         names = [c.source or c.camera.name for c in setup.cameras if c.kind == "mirror_init"]
+        self.names = names
         if not names or setup.plane is None:
             return
         colors = [palette.hex_color(palette.series_color(i, len(names))) for i in range(len(names))]
@@ -81,15 +89,17 @@ class MirrorCurves:
                     visible=False,
                 )
             self.agreement = self.server.gui.add_uplot(
-                (np.zeros(1), np.zeros(1), np.zeros(1)),
+                (np.zeros(1), *np.zeros((2 + len(names), 1))),
                 (
                     {"label": "step"},
-                    {"label": "mirrored / input", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
+                    {"label": "all mirrors", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 3},
                     {"label": "limit", "stroke": "#888888", "width": 1, "dash": [6, 4]},
+                    *({"label": n, "stroke": c, "width": 1} for n, c in zip(names, colors)),
                 ),
                 title=AGREE_TITLE,
                 scales={"x": {"time": False}, "y": {"auto": False, "range": [0.0, 1.0]}},
                 aspect=1.6,
+                legend={"show": len(names) <= 8},
                 visible=False,
             )
 
@@ -102,19 +112,12 @@ class MirrorCurves:
         if key == self._plotted:
             return
         self._plotted = key
-        if curves.dropped_at is not None and curves.disagreement:
-            self.verdict.content = (
-                f"**Mirrors dropped at step {curves.dropped_at}:** on the object their squared error was "
-                f"{curves.disagreement[-1]:.1f}x the inputs' (limit {curves.limit:g}), so they contradict what the "
-                "inputs saw. "
-                + (
-                    "A fresh field trains on the inputs alone, as B/L."
-                    if curves.restarted
-                    else "Training goes on with the inputs alone."
-                )
+        self.verdict.content = verdict_text(curves, self.names)
+        if self.agreement is not None and len(agree) >= 3 and len(agree[0]) >= 2:
+            agree = (*agree, *np.full((3 + len(self.names) - len(agree), len(agree[0])), np.nan))  # pooled-only runs
+            top = float(
+                np.nanmax([*agree[1], *np.ravel(agree[3:]), curves.limit if np.isfinite(curves.limit) else 0.0])
             )
-        if self.agreement is not None and len(agree) == 3 and len(agree[0]) >= 2:
-            top = float(np.nanmax([*agree[1], curves.limit if np.isfinite(curves.limit) else 0.0]))
             self.agreement.scales = {
                 "x": {"time": False},
                 "y": {"auto": False, "range": [0.0, float(np.ceil(top * 1.1 + 0.01))]},
@@ -130,6 +133,28 @@ class MirrorCurves:
                 plot.title = title
             plot.data = data
             plot.visible = True
+
+
+def verdict_text(curves: RunCurves, names: list[str]) -> str:
+    """The agreement gate's verdicts in words: which mirrored views were dropped, when, how far over the
+    limit, and what the run did then; "" while every one is kept."""
+    gone = [(i, at) for i, at in enumerate(curves.mirror_dropped_at) if at is not None]
+    if not gone and curves.dropped_at is None:
+        return ""
+    if not gone:  # a run that reports no per-mirror verdicts: all at once
+        gone = [(i, curves.dropped_at) for i in range(len(names))]
+    each = ", ".join(
+        f"{names[i] if i < len(names) else i} at step {at}"
+        + (f" ({curves.drop_ratio[i]:.1f}x)" if np.isfinite(curves.drop_ratio.get(i, np.nan)) else "")
+        for i, at in gone
+    )
+    kept = len(names) - len(gone)
+    them = "them" if len(gone) > 1 else "it"
+    return (
+        f"**Mirrored views dropped: {each}.** On the object their squared error was over {curves.limit:g}x the "
+        f"inputs', so they show what the inputs contradict. {AFTER_DROP[curves.after_drop].format(them=them)} "
+        + (f"{kept} of {len(names)} mirrored views train on." if kept else "No mirrored view is left.")
+    )
 
 
 class PlaneTrail:

@@ -144,7 +144,7 @@ class TrainingSession(Observer):
             trainer.add_observer(obs)
         if not cfg.output.no_rrd:
             try:
-                from flipviz.viz.rerun_observer import make_rerun_observer
+                from flipviz.viz.rerun.observer import make_rerun_observer
 
                 trainer.add_observer(make_rerun_observer(tcfg, trainer.run_dir, bake=trainer.point_cloud))
             except Exception as e:

@@ -1,7 +1,7 @@
 """Stream a training run to Rerun: a `.rrd` recording, and optionally a local web viewer.
 
 `RerunObserver` turns the trainer's events (`flipviz.training.events`) into Rerun entities on one
-`step` timeline (layout in `flipviz.viz.rerun_blueprint`). It logs through its own
+`step` timeline (layout in `flipviz.viz.rerun.blueprint`). It logs through its own
 `rr.RecordingStream` (never the global one) and sets the time on the calling thread before every
 log, so it is safe to call from the training thread. The file is written incrementally and flushed
 every few seconds, so a killed run still leaves a readable recording; `on_end` finalises it and
@@ -43,8 +43,8 @@ from flipviz.training.events import (
     split_label,
 )
 from flipviz.viz import palette
-from flipviz.viz.rerun_blueprint import STEP, entity_name, make_blueprint
-from flipviz.viz.rerun_viewer import RerunWebViewer
+from flipviz.viz.rerun.blueprint import STEP, entity_name, make_blueprint
+from flipviz.viz.rerun.viewer import RerunWebViewer
 from flipviz.viz.splats import solid_splats
 
 APP_ID = "flipviz"
@@ -104,6 +104,7 @@ class RerunObserver(Observer):
         self._n_step_events = 0
         self._mirror_names: list[str] = []
         self._prev_centers: np.ndarray | None = None
+        self._dropped: set[int] = set()  # the mirrors whose drop is logged
         self._depth_range = (0.0, 10.0)
         self._logged_gt: set[str] = set()
         self._sinks_ready = False
@@ -377,6 +378,13 @@ class RerunObserver(Observer):
             v = getattr(e, f"mirror_{q}")
             if v is not None:
                 self._scalar(f"curves/mirror/{q}", e.step, v)
+        if e.mirror_ratio is not None:  # each mirror's own disagreement (training/flip.py: Agreement)
+            self._scalar("curves/agreement/per_mirror", e.step, e.mirror_ratio)
+        for i, at in enumerate(e.mirror_dropped_at or ()):
+            if at is not None and i not in self._dropped:
+                self._dropped.add(i)
+                name = self._mirror_names[i] if i < len(self._mirror_names) else str(i)
+                self.rec.log("log", rr.TextLog(f"mirrored view {name} dropped at step {at}", level="WARN"))
 
     def on_images(self, event: ImagesEvent) -> None:
         with self._lock:

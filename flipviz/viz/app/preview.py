@@ -19,10 +19,10 @@ import numpy as np
 import viser
 
 from flipviz.viz import palette
+from flipviz.viz.app.guard import guard_choice
+from flipviz.viz.app.render import BACKGROUND, RenderWorker
 from flipviz.viz.run_view import RunView
 from flipviz.viz.splats import Splats, cells_to_splats, solid_splats
-from flipviz.viz.viser_guard import guard_choice
-from flipviz.viz.viser_render import BACKGROUND, RenderWorker
 
 COLOURS = ("RGB", "opacity", "beta^2")
 STYLES = ("splats", "points")

@@ -15,7 +15,8 @@ from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.training.events import CameraInfo, SetupEvent
 from flipviz.viz import palette
-from flipviz.viz.viser_common import plane_wxyz, thumbnail, to_viser_pose
+from flipviz.viz.app.poses import plane_wxyz, to_viser_pose
+from flipviz.viz.images import thumbnail
 
 # group key -> (label in the GUI, colour)
 GROUPS: dict[str, tuple[str, tuple[int, int, int]]] = {
@@ -81,6 +82,7 @@ class RunScene:
         self.mirror_names: list[str] = []
         self.history: list[list[np.ndarray]] = []
         self.shown_c2w: np.ndarray | None = None  # the mirrored poses last sent (M, 4, 4)
+        self.dropped: list[bool] = []  # each mirrored camera: dropped by the agreement gate (drawn grey)
         self.scale = 0.3
         self.groups: dict[str, viser.FrameHandle] = {}
         self.frustums: list[viser.CameraFrustumHandle] = []  # every camera of the run (position: its centre)
@@ -132,6 +134,7 @@ class RunScene:
                 if g == "mirrors":
                     self.mirror_handles.append(h)
                     self.mirror_names.append(info.camera.name)
+                    self.dropped.append(False)
                     self.history.append([info.camera.center.copy()])
 
     def _add_frustum(self, name: str, info: CameraInfo, color, with_image: bool = True, size: float = 1.0):
@@ -157,6 +160,7 @@ class RunScene:
             self.server.scene.remove_by_name("/run")
         self.groups = {}
         self.mirror_handles, self.mirror_names, self.history, self.shown_c2w = [], [], [], None
+        self.dropped = []
         self.frustums, self.hidden = [], []
         self.setup = None
 
@@ -236,8 +240,19 @@ class RunScene:
         with self._lock:
             if scores is None or len(scores) != len(self.mirror_handles):
                 return
-            for h, s in zip(self.mirror_handles, scores):
-                h.color = palette.score_color(s)
+            for h, s, gone in zip(self.mirror_handles, scores, self.dropped):
+                if not gone:  # a dropped one stays grey
+                    h.color = palette.score_color(s)
+
+    def set_dropped(self, dropped_at: tuple[int | None, ...]) -> None:
+        """Grey out the mirrored frustums the agreement gate dropped (StepEvent.mirror_dropped_at)."""
+        with self._lock:
+            if len(dropped_at) != len(self.mirror_handles):
+                return
+            for i, at in enumerate(dropped_at):
+                if at is not None and not self.dropped[i]:
+                    self.dropped[i] = True
+                    self.mirror_handles[i].color = palette.DROPPED
 
     def set_mirror_images(self, images: list[np.ndarray]) -> None:
         """Put one image on each mirrored frustum (the flipped image, or a disagreement map)."""

@@ -35,19 +35,19 @@ import viser
 from flipviz.data.cameras import Camera
 from flipviz.data.images import to_uint8
 from flipviz.viz import palette
-from flipviz.viz.run_view import RunView, depth_range
-from flipviz.viz.viser_common import (
+from flipviz.viz.app.guard import bounded, guard_choice, guard_number
+from flipviz.viz.app.poses import camera_from_viser
+from flipviz.viz.images import (
     OUTPUTS,
     ScalarView,
     beta2_over_render,
-    camera_from_viser,
     error_map,
     output_range,
     resize_nearest,
     view_depth,
     visualize_output,
 )
-from flipviz.viz.viser_guard import bounded, guard_choice, guard_number
+from flipviz.viz.run_view import RunView, depth_range
 
 BACKGROUND = 2  # priority of periodic work nobody waits for (preview bakes, refreshes of a still view)
 
@@ -242,8 +242,8 @@ class ViewportRenderer:
         refresh_s: float = 5.0,
     ) -> None:
         self.worker, self.run = worker, run  # the model renders through `run`; its setup gives the depth scale
-        self.preview = preview  # the browser-drawn 3D preview, shown while a camera moves (viser_preview.py)
-        self.compare = compare  # the Compare tab: its view of A and B replaces ours while on (viser_compare.py)
+        self.preview = preview  # the browser-drawn 3D preview, shown while a camera moves (app/preview.py)
+        self.compare = compare  # the Compare tab: its view of A and B replaces ours while on (app/compare.py)
         self.on_unsnap = on_unsnap  # a camera left its snapped view: the app brings back what it hid
         self.max_width = int(
             min(max(max_width, MIN_WIDTH), MAX_WIDTH)
