@@ -95,8 +95,8 @@ MUTATIONS = (
     Mutation(
         "(j) a per-mirror verdict drops every kept mirror once one disagrees",
         "flipviz/training/flip.py",
-        "return [i for i in kept if ratios[i] > self.disagreement_limit]",
-        "return kept if any(ratios[i] > self.disagreement_limit for i in kept) else []",
+        "return [i for i in kept if ratios[i] > self.mirror_limit]",
+        "return kept if any(ratios[i] > self.mirror_limit for i in kept) else []",
         ("tests/test_agreement.py::test_a_mirror_over_the_limit_leaves_alone_and_the_others_train_on",),
     ),
     Mutation(
@@ -116,9 +116,16 @@ MUTATIONS = (
     Mutation(
         "(m) a resumed run forgets which mirrors were dropped",
         "flipviz/training/flip.py",
-        "            self.mirror_dropped_at = list(each)\n",
-        "",
+        "            self.mirror_dropped_at, self._still = list(each), None\n",
+        "            self._still = None\n",
         ("tests/test_agreement.py::test_a_mirror_over_the_limit_leaves_alone_and_the_others_train_on",),
+    ),
+    Mutation(
+        "(n) once every mirror has left, BA's and the plane's backward pass still runs on every batch",
+        "flipviz/training/flip.py",
+        "        if self.dropped_at is not None:\n            if self._still is None:",
+        "        if False:\n            if self._still is None:",
+        ("tests/test_agreement.py::test_a_rollback_of_every_mirror_trains_the_inputs_from_the_join_and_resumes",),
     ),
 )
 

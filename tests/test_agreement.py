@@ -81,7 +81,8 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
         uncertainty_start=0.1,
         out=tmp_path / "run",
         disagreement_limit=2.0,
-        agreement_verdict="pooled",
+        mirror_disagreement_limit=math.inf,
+        after_drop="restart",
     )
     flip = build_run(cfg, chair16).flip
     first_mirror = min(flip.ts.mirror_ids)
@@ -120,8 +121,7 @@ def per_mirror_flip(tmp_path, chair16, **settings):
         uncertainty_start=0.1,
         ba_start=0.0,
         out=tmp_path / "run",
-        disagreement_limit=2.0,
-        **settings,
+        **{"disagreement_limit": 3.0, "mirror_disagreement_limit": 2.0, "after_drop": "restart", **settings},
     )
     flip = build_run(cfg, chair16).flip
     flip.agreement.mirror = flip.agreement.input = 1.0
@@ -161,9 +161,11 @@ def test_a_mirror_over_the_limit_leaves_alone_and_the_others_train_on(tmp_path, 
     resumed.agreement.per_mirror[:] = 9.0  # now every kept one disagrees: they leave at 24, mirror 1 stays at 21
     resumed.after_step(23)
     assert resumed.mirror_dropped_at == [24, 21] + [24] * (len(ids) - 2) and resumed.dropped_at == 24
-    pooled = per_mirror_flip(tmp_path, chair16, agreement_verdict="pooled")
-    pooled.agreement.per_mirror[1] = 2.5  # the pooled ratio (1.0) is under the limit: all stay
+    pooled = per_mirror_flip(tmp_path, chair16, mirror_disagreement_limit=math.inf)
+    pooled.agreement.per_mirror[1] = 2.5  # the pooled ratio (1.0) is under its limit, and none alone counts: all stay
     assert pooled.after_step(20) is Action.GO_ON and pooled.n_dropped == 0
+    pooled.agreement.mirror = 3.5  # the pooled ratio over its limit (3.0): all of them leave at once
+    assert pooled.after_step(21) is Action.RESTART_FIELD and pooled.mirror_dropped_at == [22] * len(ids)
 
 
 def test_a_rollback_takes_the_poses_and_the_schedules_back_to_the_join(tmp_path, chair16):
@@ -204,7 +206,7 @@ def test_a_rollback_of_every_mirror_trains_the_inputs_from_the_join_and_resumes(
         method="flip+u",
         mirror_plane="scene",
         disagreement_limit=1.0,
-        agreement_verdict="pooled",
+        mirror_disagreement_limit=math.inf,
         after_drop="rollback",
         out=tmp_path / "flip",
     )
@@ -215,6 +217,7 @@ def test_a_rollback_of_every_mirror_trains_the_inputs_from_the_join_and_resumes(
     at = m["plane"]["dropped_at"]
     assert at is not None and m["plane"]["rewound_steps"] == at and m["steps"] == at + 60, m["plane"]
     assert steps.events[-1].total_steps == at + 60 and m["plane"]["kept_mirrors"] == 0
+    assert not tr.flip.poses().requires_grad  # nothing mirrored trains: the poses cost no gradient any more
     resumed = Trainer(cfg.with_settings(resume=str(tmp_path / "flip")), chair16)
     assert resumed.field_start == at and resumed.flip.rewound == at and resumed.model.with_beta
     ours = tr.model.state_dict()
@@ -241,7 +244,8 @@ def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_pat
             method="flip+u",
             mirror_plane="scene",
             disagreement_limit=1.0,
-            agreement_verdict="pooled",
+            mirror_disagreement_limit=math.inf,
+            after_drop="restart",
             out=tmp_path / "flip",
             **base,
         ),
@@ -301,7 +305,8 @@ def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
         eval_on_stop=False,
         out=tmp_path / scene,
         disagreement_limit=2.0,
-        agreement_verdict="pooled",
+        mirror_disagreement_limit=math.inf,
+        after_drop="restart",
     )
     tr = Trainer(cfg)
     steps = Steps()
@@ -332,7 +337,7 @@ def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_pat
     curves = RunCurves.for_run(mug_steps.setup)
     for e in mug_steps.events:
         curves.add_step(e)
-    x, ratio, limit, *each = curves.agreement_data()
+    x, ratio, limit, _, *each = curves.agreement_data()
     assert len(each) == len(mug_steps.events[-1].mirror_ratio)  # one ratio per mirror beside the pooled one
     assert curves.dropped_at == next(e.step for e in mug_steps.events if e.scalars["mirrors_trained"] == 0.0)
     assert curves.restarted  # the events' total grew by the steps before the drop

@@ -808,7 +808,8 @@ def test_the_frustums_and_the_mirror_tab_show_each_mirror_s_verdict(tmp_path):
         view_width=64,
         mirror_plane="official",
         uncertainty_start=0.0005,  # the NLL, and the gate, from step 50
-        disagreement_limit=2.0,
+        disagreement_limit=float("inf"),  # no pooled verdict: the mirrors leave one by one
+        mirror_disagreement_limit=2.0,
         after_drop="continue",
     )
     a = App(cfg).start()
@@ -829,7 +830,7 @@ def test_the_frustums_and_the_mirror_tab_show_each_mirror_s_verdict(tmp_path):
         while a.mirror.curves.agreement is None or not a.mirror.curves.agreement.visible:
             assert time.monotonic() < deadline
             time.sleep(0.1)
-        assert len(a.mirror.curves.agreement.data) == 3 + len(names)  # step, pooled, limit, one per mirror
+        assert len(a.mirror.curves.agreement.data) == 4 + len(names)  # step, pooled, two limits, one per mirror
     finally:
         a.stop()
 

@@ -30,7 +30,7 @@ ADDED = [
     "lr_end",
     "entropy_weight",
 ]  # since: read back at their defaults
-LATER = ["agreement_verdict"]  # since: read back as what runs saved before it did (the pooled verdict)
+LATER = ["mirror_disagreement_limit"]  # since: read back as what runs saved before it did (no per-mirror verdict)
 
 
 def test_each_flat_flag_lands_in_its_group():
@@ -65,7 +65,7 @@ def test_settings_are_saved_flat_by_their_flag_names_and_read_back_whole():
     assert run_config(saved) == cfg
     assert len(SETTINGS) + 2 == len(SAVED_BEFORE + ADDED + LATER)  # no name in two groups (method, preset: top-level)
     before = run_config({k: v for k, v in saved.items() if k not in ADDED + LATER})  # a run saved before them
-    assert before == cfg.with_settings(agreement_verdict="pooled")
+    assert before == cfg.with_settings(mirror_disagreement_limit=float("inf"))
 
 
 def test_with_settings_changes_only_what_it_names_and_refuses_what_no_group_has():

@@ -72,8 +72,8 @@ class BenchConfig:
     unconfident_plane: Literal["drop", "use"] = FlipConfig.unconfident_plane
     """Flip runs with an unconfident auto plane: use its mirrors (the agreement gate may drop them) or drop
     them at setup (the run then takes its B/L twin's result)."""
-    agreement_verdict: Literal["per-mirror", "pooled"] = FlipConfig.agreement_verdict
-    """Which mirrors the agreement gate drops: each on its own ratio, or all of them on the pooled one."""
+    mirror_disagreement_limit: Annotated[float, Range(1.0, float("inf"))] = FlipConfig.mirror_disagreement_limit
+    """A single mirrored view is dropped when its own disagreement passes this (TrainConfig's); inf: never."""
     after_drop: Literal["rollback", "restart", "continue"] = FlipConfig.after_drop
     """When the agreement gate drops mirrors: roll the field back to the join, restart it once all are
     dropped, or continue it (TrainConfig.after_drop)."""

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 from pathlib import Path
@@ -19,10 +20,12 @@ import numpy as np
 from flipviz.data.cameras import Camera
 from flipviz.data.images import save_png
 from flipviz.errors import UserError
-from flipviz.files import FolderLock, write_json
+from flipviz.files import FolderLock, remove_leftover_temps, write_json
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.training.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from flipviz.training.config import TrainConfig
+
+log = logging.getLogger("flipviz.training")
 
 PLANE_FILE, METRICS_FILE = "plane.json", "metrics.json"
 RUN_FILES = (CHECKPOINT_NAME, METRICS_FILE, "transforms.json", PLANE_FILE, "test_renders", "mirrored", "recording*.rrd")
@@ -116,3 +119,13 @@ def write_transforms(
 
 def write_plane(run_dir: Path, estimate: PlaneEstimate) -> Path:
     return write_json(run_dir / PLANE_FILE, estimate.to_dict())
+
+
+def take_over(run_dir: Path, cfg: TrainConfig) -> None:
+    """Holding the run folder's lock: remove the temporary files of killed writes, and refuse to
+    overwrite an earlier run (unless --overwrite, which deletes it) or another run's recording."""
+    if remove_leftover_temps(run_dir):
+        log.info("removed the temporary files of writes killed earlier in %s", run_dir)
+    refuse_to_overwrite(run_dir, cfg)
+    if cfg.output.resume is None and cfg.output.overwrite:
+        remove_run(run_dir)

@@ -13,9 +13,11 @@ written holds only such data, so all of them still load.
 
 from __future__ import annotations
 
+import copy
 import errno
 import pickle
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -38,16 +40,23 @@ def checkpoint_path(path: Path | str) -> Path:
 
 
 def save_checkpoint(path: Path, state: dict) -> Path:
-    """Write `state` (plain data + tensors) to `path`, atomically; interrupts wait until it is written."""
-    need_space(path, 1.05 * state_bytes(state) + SPACE_RESERVE, "the checkpoint")
-    with signals_deferred(), atomic_path(path) as tmp:
-        try:
-            torch.save(state, tmp)
-        except RuntimeError as e:  # torch's zip writer reports a failed write (a full disk) so, not as OSError
-            free = free_bytes(tmp.parent)
-            raise OSError(
-                errno.EIO, f"the write failed, {free / 1e6:.0f} MB free on that disk ({str(e).splitlines()[0][:80]})"
-            ) from None
+    """Write `state` (plain data + tensors) to `path`, atomically; interrupts wait until it is written. A
+    failed write (a full disk, a read-only folder) is a UserError naming the file; the last good
+    checkpoint stays and no temporary file is left."""
+    try:
+        need_space(path, 1.05 * state_bytes(state) + SPACE_RESERVE, "the checkpoint")
+        with signals_deferred(), atomic_path(path) as tmp:
+            try:
+                torch.save(state, tmp)
+            except RuntimeError as e:  # torch's zip writer reports a failed write (a full disk) so, not as OSError
+                free = free_bytes(tmp.parent)
+                raise OSError(
+                    errno.EIO,
+                    f"the write failed, {free / 1e6:.0f} MB free on that disk ({str(e).splitlines()[0][:80]})",
+                ) from None
+    except OSError as e:
+        kept = "the last good checkpoint is kept" if Path(path).is_file() else "no checkpoint was written yet"
+        raise UserError(f"cannot write {path}: {e.strerror or e}; {kept}") from None
     return Path(path)
 
 
@@ -99,14 +108,57 @@ def state_is_finite(state_dict: dict) -> bool:
 MISFIT = (KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
 
 
+def is_count(value: object) -> bool:
+    """A whole number >= 0 (a step, a step counter; not a bool)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
 def counter(state: dict, key: str, default: int | None = None) -> int:
     """The checkpoint's step counter `key` (step, field_start): a whole number >= 0, else ValueError."""
     value = state[key] if default is None else state.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+    if not is_count(value):
         raise ValueError(f"{key} {value!r} is not a whole number >= 0")
     return value
+
+
+def check_resumable(state: dict, mine: dict, path: Path | str, named_scene: bool) -> None:
+    """A UserError unless the checkpoint's run is this one's: its method, field, scene (when the run names a
+    built-in scene, not a folder) and configuration; `mine`: this run's settings."""
+    theirs = state.get("config", {})
+    if not isinstance(theirs, dict):
+        raise UserError(f"cannot resume: {path} is not a flipviz checkpoint (its config is not a table)")
+    for key in ("method", "field", "scene", "config"):
+        if key in theirs and not isinstance(theirs[key], (str, int, type(None))):
+            raise UserError(
+                f"cannot resume: {path} is not a flipviz checkpoint (its {key} is a {type(theirs[key]).__name__})"
+            )
+        if key in theirs and theirs[key] != mine[key] and (key != "scene" or named_scene):
+            raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {mine[key]!r}")
 
 
 def misfit_reason(e: BaseException) -> str:
     """One of MISFIT in a few words, for the one line a bad checkpoint gets."""
     return f"missing {e}" if isinstance(e, KeyError) else (str(e).splitlines() or [type(e).__name__])[0][:120]
+
+
+@dataclass
+class FieldSnapshot:
+    """A field, its optimiser and the sampler's state at one of the field's steps, copied: what a rollback
+    returns to (--after-drop rollback: the join)."""
+
+    field_step: int
+    model: dict
+    opt: dict
+    rng: torch.Tensor
+
+    @classmethod
+    def take(cls, model, opt: torch.optim.Optimizer, gen: torch.Generator, field_step: int) -> FieldSnapshot:
+        return cls(field_step, copy.deepcopy(model.state_dict()), copy.deepcopy(opt.state_dict()), gen.get_state())
+
+    def restore(self, model, gen: torch.Generator) -> torch.optim.Optimizer:
+        """`model` and `gen` as they were; a new optimiser for the model, in its saved state."""
+        model.load_state_dict(copy.deepcopy(self.model))
+        opt = model.make_optimizer()
+        opt.load_state_dict(copy.deepcopy(self.opt))
+        gen.set_state(self.rng)
+        return opt

@@ -15,13 +15,17 @@ missing the metric is the string "unavailable" with a one-line reason: never a m
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from flipviz.data.cameras import Camera, View
 from flipviz.model.objective import psnr as psnr_from_mse
+from flipviz.training.events import ImagesEvent, RenderedView
+from flipviz.training.methods import TrainView
 
 ALEXNET_FILE = "alexnet-owt-7be5be79.pth"  # torchvision's AlexNet ImageNet weights
 LPIPS_FILE = "alex.pth"  # LPIPS v0.1 linear layers for AlexNet
@@ -237,3 +241,24 @@ def score_views(
     if net is None:
         out["lpips_reason"] = reason
     return out
+
+
+def images_event(
+    step: int,
+    render: Callable[[Camera], dict[str, np.ndarray]],
+    tests: list[View],
+    mirrors: list[tuple[TrainView, Camera]],
+    test_renders: list[dict[str, np.ndarray]] | None = None,
+) -> ImagesEvent:
+    """The unobserved test views (`test_renders` where already made) and the mirrored views (each with its
+    current camera), rendered by `render`, with their ground truth and the test views' mean PSNR."""
+
+    def rendered(kind, cam: Camera, gt: np.ndarray, r: dict[str, np.ndarray] | None = None) -> RenderedView:
+        r = render(cam) if r is None else r
+        return RenderedView(cam.name, kind, cam, r["rgb"], r["depth"], r["opacity"], r.get("beta2"), gt)
+
+    rs = test_renders or [None] * len(tests)
+    shown = [rendered("test", v.camera, v.rgb, r) for v, r in zip(tests, rs)]
+    flipped = [rendered("mirror", c, v.image) for v, c in mirrors]
+    scalars = {"test_psnr": float(np.mean([image_psnr(t.rgb, t.gt) for t in shown]))} if shown else {}
+    return ImagesEvent(step, shown, flipped, scalars)

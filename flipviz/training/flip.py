@@ -31,10 +31,10 @@ IV-C  Uncertainty (`objective`, model/objective.py): a flipped image is a true v
                   + (w / N_s) sum_j sigma(t_j)                                         (Eqn. 7)
 
 flipviz adds: the agreement gate (`Agreement`). Each batch compares the mirrored rays' squared
-      error on the object with the inputs'; once the NLL is on, a mirror above --disagreement-limit
-      stops being trained (--agreement-verdict per-mirror: each on its own ratio; pooled: all of them
-      on the pooled one): its rays leave the sampler and its pose freezes where it is, while the kept
-      mirrors, their BA and the plane go on. Then (--after-drop) the field goes back to where the
+      error on the object with the inputs'; once the NLL is on, the mirrors stop being trained when
+      their pooled ratio passes --disagreement-limit (all of them), and a single mirror does when its own
+      passes --mirror-disagreement-limit: its rays leave the sampler and its pose freezes where it is,
+      while the kept mirrors, their BA and the plane go on. Then (--after-drop) the field goes back to where the
       mirrors joined and trains again without the dropped ones (rollback: what they taught is gone),
       or trains on (continue); restart continues too, but once every mirror is dropped a fresh field
       trains the inputs alone (the run ends as B/L, bit for bit).
@@ -66,6 +66,7 @@ from flipviz.model.objective import Objective
 from flipviz.model.optim import adam, decay_lr
 from flipviz.model.pose_refine import PoseRefiner
 from flipviz.model.renderer import ray_box
+from flipviz.training.checkpoint import is_count
 from flipviz.training.config import FlipConfig
 from flipviz.training.methods import MethodSpec, TrainingSet, TrainView
 from flipviz.training.pose_tuning import Similarity, test_alignment
@@ -294,13 +295,14 @@ class Flip:
         self.opt_plane = None
         if self.plane is not None:
             self.opt_plane = adam([{"params": list(self.plane.parameters()), "lr": cfg.plane_lr}], 1e-8, (0.9, 0.999))
-        self.disagreement_limit, self.verdict = cfg.disagreement_limit, cfg.agreement_verdict
+        self.disagreement_limit, self.mirror_limit = cfg.disagreement_limit, cfg.mirror_disagreement_limit
         self.gate_start = self.objective.nll_start  # the NLL lets mirrors that disagree show it (Agreement)
         self.dropped_at: int | None = None  # the step at which the last mirror stopped being trained
         n_mirrors = len(ts.mirror_ids)
         self.mirror_dropped_at: list[int | None] = [None] * n_mirrors  # each mirror's verdict: the step it left
         self.frozen = torch.eye(4, device=device).repeat(n_mirrors, 1, 1)  # (M, 4, 4) a dropped mirror's pose
         self.kept_rays = int((ts.bank.view < min(ts.mirror_ids)).sum()) if ts.mirror_ids else len(ts.bank)
+        self._still: Tensor | None = None  # (V, 4, 4) the poses once every mirror is dropped: nothing moves
         self.rewound = 0  # steps the run went back (--after-drop rollback): the schedules' step is step - rewound
         self._joined = copy.deepcopy(self._moving_state())  # what a rollback returns to: the join's poses, plane
 
@@ -325,7 +327,16 @@ class Flip:
 
     def poses(self) -> Tensor:
         """(V, 4, 4) the current poses: inputs fixed; mirrors S_P S_P0 c2w_init Exp(xi) (IV-A, IV-B).
-        Before BA starts every xi is 0, Exp(xi) the identity and c2w the initial pose: nothing to compute."""
+        Before BA starts every xi is 0, Exp(xi) the identity and c2w the initial pose: nothing to compute;
+        once every mirror is dropped nothing moves: the poses are computed once, without gradients."""
+        if self.dropped_at is not None:
+            if self._still is None:
+                with torch.no_grad():
+                    self._still = self._moving_poses()
+            return self._still
+        return self._moving_poses()
+
+    def _moving_poses(self) -> Tensor:
         c2w = self.refiner() if self.ba_on else self.ts.init_c2w  # c2w_init Exp(xi)
         if self.plane is not None:
             moved = self.plane.motion() @ c2w[self.mirror_ids]  # (M, 4, 4): the mirrors follow the plane
@@ -375,13 +386,14 @@ class Flip:
         return Action.GO_ON
 
     def _disagreeing(self) -> list[int]:
-        """The kept mirrors (indices among the mirrors) whose disagreement is over the limit: each on its own
-        ratio (per-mirror; one not measured yet stays), or all of them on the pooled one (pooled)."""
+        """The kept mirrors (indices among the mirrors) to drop: all of them when their pooled ratio is over
+        --disagreement-limit, else each whose own is over --mirror-disagreement-limit (one not measured yet
+        stays)."""
         kept = [i for i, at in enumerate(self.mirror_dropped_at) if at is None]
-        if self.verdict == "pooled":
-            return kept if self.agreement.ratio > self.disagreement_limit else []
+        if self.agreement.ratio > self.disagreement_limit:
+            return kept
         ratios = self.agreement.ratios
-        return [i for i in kept if ratios[i] > self.disagreement_limit]
+        return [i for i in kept if ratios[i] > self.mirror_limit]
 
     def _drop(self, leaving: list[int], step: int) -> Action:
         """Mirrors `leaving` stop being trained from step `step` on: their rays leave the sampler, their poses
@@ -389,18 +401,19 @@ class Flip:
         once no mirror is left (restart), or the field trains on (continue)."""
         with torch.no_grad():
             now = self.poses()[self.mirror_ids].detach()  # (M, 4, 4)
-        ratios = self.agreement.ratios
+        ratios, pooled = self.agreement.ratios, self.agreement.ratio
         for i in leaving:
             self.mirror_dropped_at[i], self.frozen[i] = step, now[i]
         left = self.n_dropped == len(self.mirror_dropped_at)
         self.dropped_at = step if left else None
         log.warning(
-            "step %d: %s disagree with the inputs (disagreement %s > %.2f, training/flip.py: Agreement); %s",
+            "step %d: mirrored views %s disagree with the inputs (their own ratios %s; all kept ones %.2f; limits "
+            "%.2f each, %.2f pooled: training/flip.py, Agreement); %s",
             step,
-            "the mirrored views" if self.verdict == "pooled" else f"mirrored views {', '.join(map(str, leaving))}",
-            f"{self.agreement.ratio:.2f}"
-            if self.verdict == "pooled"
-            else ", ".join(f"{ratios[i]:.2f}" for i in leaving),
+            ", ".join(map(str, leaving)),
+            ", ".join(f"{ratios[i]:.2f}" for i in leaving),
+            pooled,
+            self.mirror_limit,
             self.disagreement_limit,
             "training without any" if left else f"training on with {len(self.mirror_dropped_at) - self.n_dropped}",
         )
@@ -508,7 +521,7 @@ class Flip:
                 len(self.mirror_dropped_at),
                 len(self.mirror_dropped_at) - self.n_dropped,
             )
-            rep["verdict"], rep["after_drop"], rep["rewound_steps"] = self.verdict, self.after_drop, self.rewound
+            rep["after_drop"], rep["rewound_steps"] = self.after_drop, self.rewound
             rep["trained"] = self.dropped_at is None
             restarted = self.dropped_at is not None and self.after_drop == "restart"
             rep["restarted_at"] = self.dropped_at if restarted else None  # the field restarted on the inputs
@@ -593,25 +606,21 @@ class Flip:
                     raise ValueError(f"{len(each)} mirrors' agreement for {len(self.agreement.per_mirror)} mirrors")
                 self.agreement.per_mirror = each
             dropped = agree.get("dropped_at")
-            if dropped is not None and not is_step(dropped):
+            if dropped is not None and not is_count(dropped):
                 raise ValueError(f"dropped_at {dropped!r} is not a step")
             self.dropped_at = dropped
             n = len(self.mirror_dropped_at)  # checkpoints from before per-mirror verdicts: all or none
             each = agree.get("mirror_dropped_at", [dropped] * n)
-            if not isinstance(each, list) or len(each) != n or not all(at is None or is_step(at) for at in each):
+            if not isinstance(each, list) or len(each) != n or not all(at is None or is_count(at) for at in each):
                 raise ValueError(f"mirror_dropped_at {each!r} is not a step or None for each of {n} mirrors")
             frozen = agree.get("frozen")
             if frozen is not None:
                 self.frozen = torch.as_tensor(frozen, dtype=torch.float32).to(self.frozen.device).reshape(n, 4, 4)
             elif any(at is not None for at in each):  # an old checkpoint: they stopped where its poses are
                 with torch.no_grad():
-                    self.frozen = self.poses()[self.mirror_ids].detach()
-            self.mirror_dropped_at = list(each)
+                    self.frozen = self._moving_poses()[self.mirror_ids].detach()
+            self.mirror_dropped_at, self._still = list(each), None
             rewound = agree.get("rewound", 0)
-            if not is_step(rewound):
+            if not is_count(rewound):
                 raise ValueError(f"rewound {rewound!r} is not a step count")
             self.rewound = rewound
-
-
-def is_step(x: object) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool) and x >= 0

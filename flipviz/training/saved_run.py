@@ -89,7 +89,7 @@ def run_config(settings: dict) -> TrainConfig:
     names = set(TrainConfig().settings())
     kw = {k: v for k, v in settings.items() if k in names}
     kw.setdefault("unconfident_plane", "use")  # saved before the option existed: any plane was trained with
-    kw.setdefault("agreement_verdict", "pooled")  # saved before per-mirror verdicts: the gate dropped all or none
+    kw.setdefault("mirror_disagreement_limit", float("inf"))  # saved before per-mirror verdicts: all or none
     try:
         for k in ("data", "out", "rrd", "resume", "plane_file"):
             if kw.get(k) is not None:

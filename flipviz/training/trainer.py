@@ -18,7 +18,6 @@ back to where the mirrors joined).
 
 from __future__ import annotations
 
-import copy
 import logging
 import threading
 import time
@@ -31,7 +30,7 @@ import torch
 from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
-from flipviz.files import FolderLock, cannot_write, remove_leftover_temps, signals_deferred
+from flipviz.files import FolderLock, cannot_write, signals_deferred
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.model.objective import psnr
 from flipviz.runtime import keep_freed_memory
@@ -44,7 +43,6 @@ from flipviz.training.events import (
     EndEvent,
     ImagesEvent,
     Observer,
-    RenderedView,
     StepEvent,
 )
 from flipviz.training.flip import Action
@@ -93,7 +91,7 @@ class Trainer:
 
     def _set_up(self, scene: SceneData | None) -> None:
         cfg = self.cfg
-        self._take_over_folder()
+        artifacts.take_over(self.run_dir, cfg)
         keep_freed_memory()  # a step's large temporaries reuse the last step's memory (runtime.py)
         torch.manual_seed(cfg.engine.seed)
         self._gen = torch.Generator().manual_seed(cfg.engine.seed)
@@ -113,7 +111,7 @@ class Trainer:
         self._stop = threading.Event()
         while self.step < self.flip.warm_up:  # steps before the run is whole (flip.py: auto's plane from the field)
             self._step()
-        self._joined = self._snapshot()  # where the mirrors joined: what Action.ROLL_BACK returns to
+        self._joined = ckpt.FieldSnapshot.take(self.model, self.opt_field, self._gen, self.step)  # Action.ROLL_BACK's
         if self.plane_estimate is not None:
             artifacts.write_plane(self.run_dir, self.plane_estimate)
         if cfg.output.resume is not None:
@@ -122,15 +120,6 @@ class Trainer:
     def _adopt(self, rs: RunSetup) -> None:
         self.spec, self.split, self.mirrors, self.training = rs.spec, rs.split, rs.mirrors, rs.training
         self.plane_estimate, self.model, self.flip = rs.estimate, rs.model, rs.flip
-
-    def _take_over_folder(self) -> None:
-        """Holding the run folder's lock: remove the temporary files of killed writes, and refuse to
-        overwrite an earlier run (unless --overwrite, which deletes it) or another run's recording."""
-        if remove_leftover_temps(self.run_dir):
-            log.info("removed the temporary files of writes killed earlier in %s", self.run_dir)
-        artifacts.refuse_to_overwrite(self.run_dir, self.cfg)
-        if self.cfg.output.resume is None and self.cfg.output.overwrite:
-            artifacts.remove_run(self.run_dir)
 
     # ------------------------------------------------------------------ public control API
     def add_observer(self, obs: Observer) -> None:
@@ -229,31 +218,13 @@ class Trainer:
                 self._restart(0)
                 self.step, self.train_seconds = 0, 0.0
         elif action is Action.RESTART_FIELD:
-            steps = self.cfg.engine.steps
-            log.warning(
-                "step %d: restarting the field on the inputs alone for %d steps (--after-drop restart)",
-                self.step,
-                steps,
-            )
+            log.warning("step %d: a fresh field trains the inputs alone (--after-drop restart)", self.step)
             self._restart(self.step)
-        elif action is Action.ROLL_BACK:
+        elif action is Action.ROLL_BACK:  # the run grows by the steps since the join
             log.warning("step %d: the field goes back to step %d, where the mirrors joined", self.step, self.flip.start)
-            self._roll_back()
-
-    def _snapshot(self) -> dict:
-        """The field, its optimiser and the sampler as they are now (a copy)."""
-        state = {"model": self.model.state_dict(), "opt_field": self.opt_field.state_dict()}
-        return copy.deepcopy(state) | {"field_step": self.step - self.field_start, "rng": self._gen.get_state()}
-
-    def _roll_back(self) -> None:
-        """The field, its optimiser and the sampler as `_snapshot` kept them; the run grows by the steps since."""
-        snap = self._joined
-        with signals_deferred():
-            self.model.load_state_dict(copy.deepcopy(snap["model"]))
-            self.opt_field = self.model.make_optimizer()
-            self.opt_field.load_state_dict(copy.deepcopy(snap["opt_field"]))
-            self._gen.set_state(snap["rng"])
-            self.field_start = self.step - snap["field_step"]
+            with signals_deferred():
+                self.opt_field = self._joined.restore(self.model, self._gen)
+                self.field_start = self.step - self._joined.field_step
 
     def _restart(self, start: int) -> None:
         """A fresh field, seeded as B/L's, from step `start` for the full cfg.engine.steps (the run then ends
@@ -395,25 +366,11 @@ class Trainer:
             if not all(ckpt.state_is_finite(state[k] or {}) for k in ("model", "poses", "plane")):
                 log.warning("not saving a non-finite state at step %d; the last good checkpoint is kept", self.step)
                 return None
-            try:
-                return ckpt.save_checkpoint(path, state)
-            except OSError as e:
-                kept = "the last good checkpoint is kept" if path.is_file() else "no checkpoint was written yet"
-                raise UserError(f"cannot write {path}: {e.strerror or e}; {kept}") from None
+            return ckpt.save_checkpoint(path, state)
 
     def _load(self, path: Path | str) -> None:
         state = ckpt.load_checkpoint(path, map_location=self.model.device)
-        theirs = state.get("config", {})
-        if not isinstance(theirs, dict):
-            raise UserError(f"cannot resume: {path} is not a flipviz checkpoint (its config is not a table)")
-        mine = self.cfg.settings()
-        for key in ("method", "field", "scene", "config"):
-            if key in theirs and not isinstance(theirs[key], (str, int, type(None))):
-                raise UserError(
-                    f"cannot resume: {path} is not a flipviz checkpoint (its {key} is a {type(theirs[key]).__name__})"
-                )
-            if key in theirs and theirs[key] != mine[key] and not (key == "scene" and self.cfg.data.path):
-                raise UserError(f"cannot resume: {path} is a {key} {theirs[key]!r} run, this one is {mine[key]!r}")
+        ckpt.check_resumable(state, self.cfg.settings(), path, named_scene=self.cfg.data.path is None)
         try:  # a crafted or foreign checkpoint fails in many ways below: each is one line
             self.flip.load_state_dict(state)
             start = ckpt.counter(state, "field_start", 0)
@@ -439,16 +396,7 @@ class Trainer:
             except Exception as e:  # observers never break training
                 log.warning("observer %s.%s failed: %s: %s", type(obs).__name__, name, type(e).__name__, e)
 
-    def _rendered(self, kind, cam: Camera, gt: np.ndarray, r: dict[str, np.ndarray] | None = None) -> RenderedView:
-        r = self.render(cam) if r is None else r
-        return RenderedView(cam.name, kind, cam, r["rgb"], r["depth"], r["opacity"], r.get("beta2"), gt)
-
     def _images_event(self, test_renders: list[dict[str, np.ndarray]] | None = None) -> ImagesEvent:
         """Test views and mirrored views with the current field (`test_renders`: render_tests(), if made)."""
-        rs = test_renders or [None] * len(self.split.tests)
-        tests = [self._rendered("test", v.camera, v.rgb, r) for v, r in zip(self.split.tests, rs)]
-        mirrors = [
-            self._rendered("mirror", c, v.image) for v, c in zip(self.training.mirror_views, self.flip.mirror_cameras())
-        ]
-        scalars = {"test_psnr": float(np.mean([ev.image_psnr(t.rgb, t.gt) for t in tests]))} if tests else {}
-        return ImagesEvent(self.step, tests, mirrors, scalars)
+        mirrors = list(zip(self.training.mirror_views, self.flip.mirror_cameras()))
+        return ev.images_event(self.step, self.render, self.split.tests, mirrors, test_renders)

@@ -48,14 +48,15 @@ class RunCurves:
     plane_steps: list[float] = field(default_factory=list)
     plane_deg: list[float] = field(default_factory=list)
     plane_offset: list[float] = field(default_factory=list)
-    limit: float = float("inf")  # --disagreement-limit
+    limit: float = float("inf")  # --disagreement-limit (all the mirrors, on their pooled ratio)
+    mirror_limit: float = float("inf")  # --mirror-disagreement-limit (one mirror, on its own)
     agree_steps: list[float] = field(default_factory=list)
     disagreement: list[float] = field(default_factory=list)
     mirror_ratio: list[np.ndarray] = field(default_factory=list)  # (M,) per agreement step, NaN once dropped
     dropped_at: int | None = None  # the step at which the agreement gate had dropped every mirror
     mirror_dropped_at: tuple[int | None, ...] = ()  # (M,) the step each mirror was dropped at (None: kept)
     drop_ratio: dict[int, float] = field(default_factory=dict)  # mirror -> its ratio when it was dropped
-    after_drop: str = "restart"  # what the run does after a drop (--after-drop)
+    after_drop: str = "rollback"  # what the run does after a drop (--after-drop)
     planned_steps: int = 0  # the run's steps at setup
     restarted: bool = False  # the run grew longer after a drop (--after-drop restart or rollback)
 
@@ -66,6 +67,7 @@ class RunCurves:
             start_plane=setup.plane,
             true_plane=setup.true_plane,
             limit=f.disagreement_limit,
+            mirror_limit=f.mirror_disagreement_limit,
             after_drop=f.after_drop,
             planned_steps=setup.total_steps,
         )
@@ -137,15 +139,15 @@ class RunCurves:
         return (np.asarray(self.mirror_steps)[idx], *deg.T)
 
     def agreement_data(self) -> tuple[np.ndarray, ...]:
-        """(steps, disagreement, the limit, then each mirror's own ratio where measured), ratios of squared
-        errors."""
+        """(steps, disagreement, its limit, a mirror's own limit, then each mirror's own ratio where measured),
+        ratios of squared errors."""
         if not self.agree_steps:
             return ()
         idx = thin(len(self.agree_steps))
         x = np.asarray(self.agree_steps)[idx]
-        limit = np.full(len(x), self.limit if np.isfinite(self.limit) else np.nan)
+        limits = [np.full(len(x), v if np.isfinite(v) else np.nan) for v in (self.limit, self.mirror_limit)]
         each = tuple(np.stack(self.mirror_ratio)[idx].T) if len(self.mirror_ratio) == len(self.agree_steps) else ()
-        return x, np.asarray(self.disagreement)[idx], limit, *each
+        return x, np.asarray(self.disagreement)[idx], *limits, *each
 
     def plane_data(self) -> tuple[np.ndarray, ...]:
         """(steps, angle in degrees, offset in scene units)."""

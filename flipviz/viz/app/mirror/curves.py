@@ -89,11 +89,12 @@ class MirrorCurves:
                     visible=False,
                 )
             self.agreement = self.server.gui.add_uplot(
-                (np.zeros(1), *np.zeros((2 + len(names), 1))),
+                (np.zeros(1), *np.zeros((3 + len(names), 1))),
                 (
                     {"label": "step"},
                     {"label": "all mirrors", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 3},
-                    {"label": "limit", "stroke": "#888888", "width": 1, "dash": [6, 4]},
+                    {"label": "limit (all)", "stroke": "#888888", "width": 1, "dash": [6, 4]},
+                    {"label": "limit (each)", "stroke": "#bbbbbb", "width": 1, "dash": [2, 4]},
                     *({"label": n, "stroke": c, "width": 1} for n, c in zip(names, colors)),
                 ),
                 title=AGREE_TITLE,
@@ -113,11 +114,10 @@ class MirrorCurves:
             return
         self._plotted = key
         self.verdict.content = verdict_text(curves, self.names)
-        if self.agreement is not None and len(agree) >= 3 and len(agree[0]) >= 2:
-            agree = (*agree, *np.full((3 + len(self.names) - len(agree), len(agree[0])), np.nan))  # pooled-only runs
-            top = float(
-                np.nanmax([*agree[1], *np.ravel(agree[3:]), curves.limit if np.isfinite(curves.limit) else 0.0])
-            )
+        if self.agreement is not None and len(agree) >= 4 and len(agree[0]) >= 2:
+            agree = (*agree, *np.full((4 + len(self.names) - len(agree), len(agree[0])), np.nan))  # pooled-only runs
+            limits = [v for v in (curves.limit, curves.mirror_limit) if np.isfinite(v)]
+            top = float(np.nanmax([*agree[1], *np.ravel(agree[4:]), *limits, 0.0]))
             self.agreement.scales = {
                 "x": {"time": False},
                 "y": {"auto": False, "range": [0.0, float(np.ceil(top * 1.1 + 0.01))]},
@@ -150,9 +150,14 @@ def verdict_text(curves: RunCurves, names: list[str]) -> str:
     )
     kept = len(names) - len(gone)
     them = "them" if len(gone) > 1 else "it"
+    why = (
+        f"Together their squared error on the object passed {curves.limit:g}x the inputs'"
+        if len(gone) == len(names) and len({at for _, at in gone}) == 1
+        else f"On the object each one's own squared error passed {curves.mirror_limit:g}x the inputs'"
+    )
     return (
-        f"**Mirrored views dropped: {each}.** On the object their squared error was over {curves.limit:g}x the "
-        f"inputs', so they show what the inputs contradict. {AFTER_DROP[curves.after_drop].format(them=them)} "
+        f"**Mirrored views dropped: {each}.** {why}, so they show what the inputs contradict. "
+        f"{AFTER_DROP[curves.after_drop].format(them=them)} "
         + (f"{kept} of {len(names)} mirrored views train on." if kept else "No mirrored view is left.")
     )
 
