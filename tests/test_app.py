@@ -31,6 +31,7 @@ from flipviz.viz.app.poses import (
     to_viser_pose,
 )
 from flipviz.viz.app.session import train_config
+from flipviz.viz.app.train import step_text
 from flipviz.viz.images import upscale, visualize_output
 
 pytestmark = pytest.mark.slow
@@ -1275,3 +1276,9 @@ def test_run_events_hand_the_ui_thread_each_new_thing_once_and_a_new_run_forgets
     events.clear()
     with events.curves() as curves:
         assert curves is None and events.step == 0
+
+
+def test_the_step_count_says_why_a_run_grew_past_the_steps_asked_for():
+    """Issue 45: after the mug's drop the Train tab showed "step 500 / 958" for a 600-step request."""
+    assert step_text(500, 600, 600) == "step **500** / 600"
+    assert step_text(500, 691, 600) == "step **500** / 691 (600 asked + 91 again after the mirrors' drop)"

@@ -42,6 +42,15 @@ def fmt_time(s: float) -> str:
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
 
 
+def step_text(step: int, total: int, asked: int) -> str:
+    """The Train tab's step count; a run that grew past the steps asked for (a drop sent the field back to
+    the join, or a fresh field trained the inputs) says by how much and why."""
+    text = f"step **{step}** / {total}"
+    if total > asked:
+        text += f" ({asked} asked + {total - asked} again after the mirrors' drop)"
+    return text
+
+
 def psnr_scales(rng: tuple[float, float]) -> dict:
     """The PSNR chart's scales: both curves on one fixed range. The test curve is NaN between
     evaluations (uPlot joins its points with spanGaps), and uPlot's automatic range fails on a
@@ -170,7 +179,7 @@ class TrainPanel:
             s = ev.scalars
             rate = ev.step / ev.elapsed_s if ev.elapsed_s > 0 else float("nan")
             parts += [
-                f"step **{ev.step}** / {ev.total_steps}",
+                step_text(ev.step, ev.total_steps, setup.cfg.engine.steps if setup else ev.total_steps),
                 f"loss {s.get('loss', float('nan')):.4f}",
                 f"PSNR {s.get('psnr', float('nan')):.2f} dB",
                 f"{rate:.1f} steps/s",

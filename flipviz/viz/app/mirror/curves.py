@@ -25,7 +25,10 @@ POSE_TITLES = {
     False: "Mirrored cameras: rotation BA applied (deg)",
 }  # no true plane: what BA moved
 PLANE_TITLES = {True: "Mirror plane: error vs the true plane", False: "Mirror plane: change from its start"}
-AGREE_TITLE = "Mirrors vs inputs: squared error ratio on the object, all and each (dropped above the limit)"
+AGREE_TITLE = (
+    "Mirrors vs inputs: squared error ratio on the object, all and each (judged once the NLL is on: dropped above"
+    " its limit)"
+)
 AFTER_DROP = {  # what the run does once mirrors are dropped (--after-drop)
     "rollback": "The field went back to where the mirrors joined and trains again without {them}.",
     "restart": "Training goes on without {them}; once none is left, a fresh field trains the inputs alone, as B/L.",
