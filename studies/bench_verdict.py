@@ -31,23 +31,22 @@ from flipviz.files import write_json, write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 INF = float("inf")
+
+
+def limits(pooled: float, each: float, after_drop: str) -> dict:
+    """A variant's settings: the pooled and the per-mirror limit, and what follows a drop."""
+    return {"disagreement_limit": pooled, "mirror_disagreement_limit": each, "after_drop": after_drop}
+
+
 VARIANTS: dict[str, dict] = {
     "B/L": {"method": "bl"},
-    "pooled, restart": {"mirror_disagreement_limit": INF, "after_drop": "restart"},  # the gate before issue 41
-    "pooled, rollback": {"mirror_disagreement_limit": INF, "after_drop": "rollback"},
-    "each over 3.25, continue": {
-        "disagreement_limit": INF,
-        "mirror_disagreement_limit": 3.25,
-        "after_drop": "continue",
-    },
-    "each over 3.25, restart": {"disagreement_limit": INF, "mirror_disagreement_limit": 3.25, "after_drop": "restart"},
-    "each over 3.25, rollback": {
-        "disagreement_limit": INF,
-        "mirror_disagreement_limit": 3.25,
-        "after_drop": "rollback",
-    },
-    "pooled + each over 6, restart": {"mirror_disagreement_limit": 6.0, "after_drop": "restart"},
-    "pooled + each over 6, rollback": {"mirror_disagreement_limit": 6.0, "after_drop": "rollback"},
+    "pooled, restart": limits(3.25, INF, "restart"),  # the gate before issue 41
+    "pooled, rollback": limits(3.25, INF, "rollback"),
+    "each over 3.25, continue": limits(INF, 3.25, "continue"),
+    "each over 3.25, restart": limits(INF, 3.25, "restart"),
+    "each over 3.25, rollback": limits(INF, 3.25, "rollback"),
+    "pooled + each over 6, restart": limits(3.25, 6.0, "restart"),
+    "pooled + each over 6, rollback": limits(3.25, 6.0, "rollback"),
 }
 
 

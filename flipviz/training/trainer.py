@@ -111,7 +111,8 @@ class Trainer:
         self._stop = threading.Event()
         while self.step < self.flip.warm_up:  # steps before the run is whole (flip.py: auto's plane from the field)
             self._step()
-        self._joined = ckpt.FieldSnapshot.take(self.model, self.opt_field, self._gen, self.step)  # Action.ROLL_BACK's
+        field_step = self.step - self.field_start  # where the mirrors joined: what Action.ROLL_BACK returns to
+        self._joined = ckpt.FieldSnapshot.take(self.model, self.opt_field, self._gen, field_step)
         if self.plane_estimate is not None:
             artifacts.write_plane(self.run_dir, self.plane_estimate)
         if cfg.output.resume is not None:
