@@ -442,6 +442,8 @@ def test_per_config_table_reports_the_flip_runs_coverage_and_plane() -> None:
         "error_offset": 0.04,
         "refined_error_deg": 0.1,
         "refined_error_offset": 0.002,
+        "kept_mirrors": 5,  # per-mirror verdicts (config 1's run predates them: "-")
+        "n_mirrors": 8,
     }
     rows = [
         row("bl", 1, 20.0, 1.0, None),
@@ -450,8 +452,8 @@ def test_per_config_table_reports_the_flip_runs_coverage_and_plane() -> None:
         row("flip+u", 2, 21.5, 2.0, refined),
     ]
     lines = per_config_table(rows, ["bl", "flip+u"]).splitlines()
-    assert lines[2].endswith("| +0.00 | - | 45.0 | 0% | 0.100 (dropped) | - |"), lines[2]
-    assert lines[3].endswith("| +1.50 | - | 2.0 | 100% | 0.300 | 1.25° / 0.040 -> 0.10° / 0.002 |"), lines[3]
+    assert lines[2].endswith("| +0.00 | - | 45.0 | 0% | 0.100 (dropped) | - | - |"), lines[2]
+    assert lines[3].endswith("| +1.50 | - | 2.0 | 100% | 0.300 | 1.25° / 0.040 -> 0.10° / 0.002 | 5 of 8 |"), lines[3]
 
 
 def test_paper_numbers_match_protocol_and_tex() -> None:
