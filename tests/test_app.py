@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 import tyro
-from viser_client import ViserTestClient
+from viser_client import ViserTestClient, until
 
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
@@ -626,7 +626,15 @@ def test_the_pixel_probe_reads_a_clicked_pixel_of_the_snapped_view(app):
             n = len(c.messages)
             await c.click_scene(cam.center, dirs[row * cam.width + col])
             await c.wait_for(lambda m: m["type"] == "IcosphereMessage" and m["name"] == "/probe", timeout=60, start=n)
-            return await c.wait_for(lambda m: m["type"] == "SetPositionMessage" and m["name"] == "/probe", start=n)
+            marker = await c.wait_for(lambda m: m["type"] == "SetPositionMessage" and m["name"] == "/probe", start=n)
+            read = (app.probe.reading, app.probe.text.content)  # issue 45: snapped to another view, they go
+            n = len(c.messages)
+            await c.set_value("View", other)
+            await until(lambda: app.snap.select.value == other, "the other view was never chosen")
+            await c.click("Snap to view")
+            await c.wait_for(lambda m: m["type"] == "RemoveSceneNodeMessage" and m["name"] == "/probe", start=n)
+            await c.wait_for(lambda m: "Pixel probe: snap to a view" in str(m), start=n)
+            return marker, read
 
     deadline = time.monotonic() + 60
     while not any(k.startswith("test") for k in app.snap.views):  # the views are listed by the UI tick
@@ -634,15 +642,14 @@ def test_the_pixel_probe_reads_a_clicked_pixel_of_the_snapped_view(app):
         time.sleep(0.1)
     app.pause()
     try:
-        key = next(k for k in app.snap.views if k.startswith("test"))
+        key, other = [k for k in app.snap.views if k.startswith("test")][:2]
         cam = app.snap.views[key][2]
         opacity = app.render(cam)["opacity"]
         row, col = np.unravel_index(np.argmax(opacity), opacity.shape)  # a pixel on the object
-        marker = run(go())
+        marker, (r, text) = run(go())
         out = app.render(cam)  # paused: the model the probe read
     finally:
         app.resume()
-    r = app.probe.reading
     gt = app.snap.views[key][3][row, col]
     assert (r.view, r.row, r.col) == (key, row, col)
     assert np.allclose(r.rgb, out["rgb"][row, col], atol=1e-5) and np.allclose(r.gt, gt)
@@ -652,7 +659,6 @@ def test_the_pixel_probe_reads_a_clicked_pixel_of_the_snapped_view(app):
     assert r.beta2 == pytest.approx(float(out["beta2"][row, col]), abs=1e-6)  # Flip+U renders beta^2
     rows, cols, inside = cam.project(np.asarray(marker["position"])[None])
     assert inside[0] and (rows[0], cols[0]) == (row, col)  # the marker lies on the clicked pixel's ray
-    text = app.probe.text.content
     assert f"Pixel ({row}, {col})" in text and "beta^2" in text and "opacity" in text
 
 
@@ -832,6 +838,21 @@ def test_the_frustums_and_the_mirror_tab_show_each_mirror_s_verdict(tmp_path):
             assert time.monotonic() < deadline
             time.sleep(0.1)
         assert len(a.mirror.curves.agreement.data) == 4 + len(names)  # step, pooled, two limits, one per mirror
+
+        async def anyway():  # issue 45: the lesson one click away whenever the gate dropped mirrors
+            async with ViserTestClient(f"ws://127.0.0.1:{a.port}") as c:
+                await c.send_camera((4.0, -4.0, 3.0))
+                await c.wait_gui("Show the mirrors anyway (not trained on)")
+                await c.click("Show the mirrors anyway (not trained on)")
+                await until(lambda: "(dropped at" in a.mirror.consistency.table.content, "the scores name no drop")
+
+        assert a.mirror.consistency.anyway_btn.visible
+        run(anyway())
+        table = a.mirror.consistency.table.content
+        assert all(f"{n}_flip (dropped at" in table or n not in dropped for n in names), table
+        assert a.mirror.consistency.frustum_shows.value == "disagreement"
+        for h, gone in zip(a.scene.mirror_handles, a.scene.dropped):  # the verdict's grey stays
+            assert (tuple(h.color) == palette.DROPPED) == gone
     finally:
         a.stop()
 
@@ -967,12 +988,6 @@ def test_a_malformed_message_is_one_log_line(app, caplog, capfd):
 def test_a_browser_cannot_name_folders_outside_the_roots_nor_oversize_values(app):
     """Security (docs/RELIABILITY.md): Compare's folder and Restart's data folder refuse paths the command
     line did not name; a client's 6000 px "Max resolution" is clamped on the server."""
-
-    async def until(cond, what: str, timeout: float = 30.0) -> None:
-        t = time.monotonic()
-        while not cond():
-            assert time.monotonic() - t < timeout, what
-            await asyncio.sleep(0.05)
 
     async def go():
         async with ViserTestClient(url(app)) as c:

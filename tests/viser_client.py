@@ -55,6 +55,14 @@ def wxyz_look_at(position: np.ndarray, target: np.ndarray) -> tuple[float, ...]:
     return tuple(float(v) for v in to_viser_pose(look_at(position, target))[0])
 
 
+async def until(cond: Callable[[], bool], what: str, timeout: float = 60.0) -> None:
+    """Wait (on the event loop, the client's reader going on) until the app's side of a change holds."""
+    t = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t < timeout, what
+        await asyncio.sleep(0.05)
+
+
 class ViserTestClient:
     """Connects, records every message it receives, and sends camera / GUI / gizmo messages."""
 

@@ -267,6 +267,7 @@ class App:
 
         self.scene.hide_near(cam.center, 0.35 * float(self.setup.sphere_radius) if self.setup else 1.0)
         self.mirror.set_snapped(True)
+        self.probe.clear()  # its reading and marker belong to the view left (the dot would sit on the object)
         self.views.snap(client.client_id, Snapped(cam, reference, name))
 
     # ---- the run: viz/app/session.py owns its lifecycle ----------------------------------
@@ -419,6 +420,7 @@ class App:
             self._last_mirrors = now
         if news.step is not None and news.step.mirror_dropped_at is not None:
             self.scene.set_dropped(news.step.mirror_dropped_at)
+            self.mirror.on_dropped(news.step.mirror_dropped_at)
         if now - self._last_plot > 1.0:
             with self.events.curves() as curves:
                 if curves is not None:

@@ -135,8 +135,8 @@ class MirrorScores:
             "Show the mirrors anyway (not trained on)",
             icon=viser.Icon.EYE,
             visible=False,
-            hint="The doubted plane's mirrored cameras, scored and showing where their flipped images disagree",
-        )  # shown when an unconfident estimate dropped the mirrors
+            hint="The dropped mirrored cameras, scored and showing where their flipped images disagree",
+        )  # shown when mirrors were dropped: by an unconfident estimate at setup, or by the agreement gate
         self.score_btn = gui.add_button("Score mirrors", icon=viser.Icon.RULER, hint="Render each mirrored view now")
         self.table = gui.add_markdown("")
         self.scores: dict[str, list[float]] = {}  # column label -> one PSNR per mirrored view
@@ -191,8 +191,10 @@ class MirrorScores:
             rgb, gt = out["rgb"], resize_nearest(gt, out["rgb"].shape[1], out["rgb"].shape[0])
             scores.append(image_psnr(rgb, gt))
             disagreement.append(error_map(rgb, gt))
-        if what.preview is None:
+        if what.preview is None:  # the run's frustums (a dropped one stays grey), and the maps when asked for
             self.scene.set_mirror_colors(scores)
+            if self.frustum_shows.value == "disagreement" and scores and all(d is not None for d in disagreement):
+                self.scene.set_mirror_images(disagreement)
         else:  # the preview frustums take the colours of their scores (and, asked for, the disagreement maps)
             maps = self.frustum_shows.value == "disagreement"
             what.preview.wear(scores, [d if maps and d is not None else f for d, f in zip(disagreement, what.flipped)])

@@ -223,6 +223,7 @@ class MirrorLesson:
         self.moved = False  # you moved the plane: the gizmo no longer follows training
         self.snapped = False  # a browser is at a snapped view: the square would wash over it
         self.anyway = False  # the dropped mirrors are drawn and scored, though training ignores them
+        self.dropped_at: tuple[int | None, ...] = ()  # each mirror: the step the agreement gate dropped it at
 
     # ---- per run ----------------------------------------------------------------------------
     def build(self, setup: SetupEvent) -> None:
@@ -256,7 +257,7 @@ class MirrorLesson:
                 visible=bool(self.show_plane.value) and not self.snapped,
             )
             self.preview.clear()
-            self.anyway = False
+            self.anyway, self.dropped_at = False, ()
             self.consistency.anyway_btn.visible = m.dropped
             self.moved = False
             self.gizmo.on_update(self._on_gizmo)
@@ -357,11 +358,23 @@ class MirrorLesson:
         return " - where training started the plane." if m.refining else " - the training plane."
 
     def _preview_wanted(self) -> bool:
-        return bool(self.show_preview.value and (self.moved or self.anyway))
+        return bool(self.show_preview.value and (self.moved or self._doubted_shown()))
+
+    def _doubted_shown(self) -> bool:
+        """The mirrors an unconfident estimate dropped at setup are shown anyway (as the plane's preview)."""
+        return self.anyway and self.mirrors is not None and self.mirrors.dropped
+
+    def on_dropped(self, dropped_at: tuple[int | None, ...]) -> None:
+        """The agreement gate dropped mirrors in training (StepEvent.mirror_dropped_at): they stay drawn
+        (grey), and *Show the mirrors anyway* shows what each one's flipped image contradicts."""
+        if any(at is not None for at in dropped_at):
+            self.dropped_at = tuple(dropped_at)
+            self.consistency.anyway_btn.visible = True
 
     def show_anyway(self) -> None:
-        """The lesson of an asymmetric object in one click: the mirrors an unconfident estimate dropped,
-        drawn at the estimated plane's poses, coloured by their scores, showing their disagreement maps."""
+        """The lesson of an asymmetric object in one click: the mirrors that were dropped (by an unconfident
+        estimate: drawn at the estimated plane's poses; by the agreement gate: where BA left them), scored,
+        showing their disagreement maps: where the flipped images show what no input saw."""
         self.anyway = True
         self.consistency.frustum_shows.value = "disagreement"
         self._set_preview_visible()
@@ -380,8 +393,9 @@ class MirrorLesson:
         m = self.mirrors
         if m is None:  # no run yet: nothing to score
             return Scoring([], [], [], "no run yet", None)
-        names = [f"{c.name}_flip" for c in m.inputs]
-        if (self.moved or self.anyway) and self.preview.cams:
+        at = self.dropped_at if len(self.dropped_at) == len(m.inputs) else (None,) * len(m.inputs)
+        names = [f"{c.name}_flip" + (f" (dropped at {s})" if s is not None else "") for c, s in zip(m.inputs, at)]
+        if (self.moved or self._doubted_shown()) and self.preview.cams:
             what = "plane preview" if self.moved else "doubted plane, not trained on"
             return Scoring(self.preview.cams, m.flipped, names, f"{what}, step {self.run.step}", self.preview)
         c2w = self.run.mirror_c2w
