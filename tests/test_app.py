@@ -31,7 +31,7 @@ from flipviz.viz.app.poses import (
     to_viser_pose,
 )
 from flipviz.viz.app.session import train_config
-from flipviz.viz.app.train import step_text
+from flipviz.viz.app.train import Pace, step_text
 from flipviz.viz.images import upscale, visualize_output
 
 pytestmark = pytest.mark.slow
@@ -721,7 +721,7 @@ def test_train_b_next_to_the_running_a(app):
         assert (
             b.training
             and b.trainer.cfg.method == "bl"
-            and b.trainer.run_dir.name == f"{app.session.run_dir().name}-B-bl"
+            and b.trainer.run_dir.name == f"{app.session.run_dir().name}-B-bl-authors"  # B's method and setting
         )
         assert b.trainer.scene.name == app.setup.scene and b.trainer.run_dir.parent == app.session.run_dir().parent
         assert (
@@ -730,6 +730,53 @@ def test_train_b_next_to_the_running_a(app):
         assert app.cfg.preset == "fast" and "B/L (authors)" in b.name  # A stays in flipviz's
     finally:
         app.compare.stop()
+
+
+def test_run_b_is_unloaded_when_run_a_changes_scene(tmp_path):
+    """Issue 45 item 2: after Restart -> mug, run B (the chair's B/L) would be composed with another object:
+    it is unloaded (its training stopped, its folder kept), Compare turns off and its panel says why."""
+    cfg = AppConfig.from_settings(
+        scene="chair",
+        res=24,
+        steps=100_000,
+        batch_rays=256,
+        no_rrd=True,
+        port=0,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        out=tmp_path / "run",
+        view_width=64,
+        mirror_plane="official",  # no estimate to wait for
+    )
+    a = App(cfg).start()
+
+    async def go():
+        async with ViserTestClient(f"ws://127.0.0.1:{a.port}") as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_gui("Train B next to this run")
+            await until(lambda: a.setup is not None and a.step > 1, "run A never started", timeout=150)
+            await c.click("Train B next to this run")
+            await until(lambda: a.compare.b is not None and a.compare.b.trainer.step > 2, "run B never trained")
+            await until(lambda: a.compare.shown, "the comparison never showed")
+            b = a.compare.b
+            await c.set_value("Scene", "mug")
+            await until(lambda: a.train.scene_dd.value == "mug", "the scene never arrived")
+            await c.click("Restart training")
+            await c.wait_gui("Replace the run")
+            await c.click("Replace the run")
+            await until(lambda: a.setup is not None and a.setup.scene == "mug", "no restart", timeout=150)
+            return b
+
+    try:
+        b = run(go())
+        assert a.compare.b is None and a.compare.mode_dd.value == "off" and not a.compare.shown
+        note = a.compare.status_md.content
+        assert "was unloaded" in note and "**chair**" in note and "**mug**" in note, note
+        assert not b.thread.is_alive() and (b.trainer.run_dir / "checkpoint.pt").is_file()  # stopped, kept
+        assert b.trainer.run_dir.name.endswith("-B-bl-fast")
+    finally:
+        a.stop()
 
 
 def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_path):
@@ -889,8 +936,19 @@ def test_restart_with_another_method(app):
             await c.wait_gui("Restart training")
             await c.set_value("Method", "bl")
             await c.set_value("Setting", "authors")
-            await asyncio.sleep(0.3)
+            await until(lambda: (app.train.method_dd.value, app.train.setting_dd.value) == ("bl", "authors"), "form")
+            await c.click("Restart training")  # issue 45: asked first; kept, nothing restarts
+            ask = await c.wait_for(lambda m: m["type"] == "GuiModalMessage")
+            await c.wait_gui("Keep this run")
+            question = next(str(m) for m in c.messages if m["type"] == "GuiMarkdownMessage" and "Replace" in str(m))
+            await c.click("Keep this run")
+            await c.wait_for(lambda m: m["type"] == "GuiCloseModalMessage" and m["uuid"] == ask["uuid"])
+            assert app.restarts == 0 and app.setup is old
+            n = len(c.messages)
             await c.click("Restart training")
+            await c.wait_for(lambda m: m["type"] == "GuiModalMessage", start=n)
+            await c.wait_for(lambda m: m.get("props", {}).get("label") == "Replace the run", start=n)
+            await c.click("Replace the run")  # (the newest modal's button: c.gui keeps the latest)
             t = time.monotonic()
             while not (app.setup is not None and app.setup.method == "bl" and app.step > 0):
                 assert time.monotonic() - t < 90, f"no restart: {app.status} {app.message}"
@@ -900,14 +958,20 @@ def test_restart_with_another_method(app):
             while app.compare.b is None:
                 assert time.monotonic() - t < 60, app.compare.status_md.content
                 await asyncio.sleep(0.2)
+            return question
 
-    old = app.setup
+    old, first_dir = app.setup, app.session.run_dir()
     try:
-        run(go())
+        question = run(go())
     finally:
         b = app.compare.b
         app.compare.stop()
     assert app.setup is not old and app.cfg.method == "bl" and app.restarts == 1
+    assert "Replace this run" in question and str(first_dir) in question and "Compare with the previous run" in question
+    from flipviz.training.config import with_preset
+
+    paper = app.restart_question(with_preset(app.cfg, "paper"))  # on this CPU: said before it starts
+    assert "sized for a GPU" in paper and "nerf field, 128 samples" in paper, paper
     assert (
         app.cfg.preset == "authors"
         and app.trainer.cfg.engine.background == "last"
@@ -1297,3 +1361,20 @@ def test_the_step_count_says_why_a_run_grew_past_the_steps_asked_for():
     """Issue 45: after the mug's drop the Train tab showed "step 500 / 958" for a 600-step request."""
     assert step_text(500, 600, 600) == "step **500** / 600"
     assert step_text(500, 691, 600) == "step **500** / 691 (600 asked + 91 again after the mirrors' drop)"
+
+
+def test_the_eta_comes_from_wall_time_per_step_evaluations_included():
+    """Issue 45: the ETA counted the step compute only and ran 1.5-1.7x short. 100 steps at 10 steps/s, then
+    an evaluation of 10 s: the pace over the window is 100 steps in 20 s, and a rollback starts it again."""
+    pace = Pace(window_s=60.0)
+    for i in range(101):
+        pace.add(i, now=0.1 * i)
+    assert pace.rate() == pytest.approx(10.0)
+    pace.add(101, now=20.0)  # the step after a 10 s evaluation
+    assert pace.rate() == pytest.approx(101 / 20.0)
+    pace.add(101, now=25.0)  # no new step: nothing changes
+    assert pace.rate() == pytest.approx(101 / 20.0)
+    pace.add(200, now=100.0)  # the window keeps the last minute (and at least two steps)
+    assert pace.rate() == pytest.approx((200 - 101) / (100.0 - 20.0))
+    pace.add(50, now=101.0)  # back to the join: a fresh pace
+    assert pace.rate() is None

@@ -484,6 +484,9 @@ def test_7_restart_with_bl(app, browser):
     tab(browser, "Train")
     choose(browser, "Method", "bl")
     button(browser, "Restart training")
+    wait_until(lambda: "Replace this run" in browser.page_source, 20, what="the question before a restart")
+    shot(browser, "7_ask")
+    button(browser, "Replace the run")  # issue 45: asked first
     wait_until(lambda: app.setup is not None and app.setup.method == "bl" and app.step > 5, 120, what="the B/L run")
     wait_until(lambda: "chair | bl | configuration 1" in panel_text(browser), 30, what="the status of B/L")
     assert not app.scene.mirror_handles  # B/L trains on no mirror: none drawn
@@ -497,6 +500,7 @@ def test_8_switch_scene(app, browser):
     choose(browser, "Scene", "mug")
     choose(browser, "Method", "flip+u")
     button(browser, "Restart training")
+    button(browser, "Replace the run")  # issue 45: asked first
     wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step > 5, 180, what="the mug run")
     wait_until(lambda: "mug | flip+u" in panel_text(browser), 30, what="the mug's status")
     img = wait_view(browser, "8_mug", lambda i: i.std() > 10)

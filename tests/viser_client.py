@@ -95,7 +95,8 @@ class ViserTestClient:
                 for m in msgs:
                     self.messages.append(m)
                     props = m.get("props")
-                    if "uuid" in m and isinstance(props, dict) and props.get("label"):
+                    labelled = "uuid" in m and isinstance(props, dict) and props.get("label")
+                    if labelled and m["type"] != "GuiFolderMessage":  # (a folder's label may be an input's: "Scene")
                         self.gui[props["label"]] = m
                 self._new.set()
         except websockets.ConnectionClosed:

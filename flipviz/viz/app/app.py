@@ -52,7 +52,7 @@ from flipviz.viz.app.probe import PixelProbe
 from flipviz.viz.app.render import RenderWorker, ViewportRenderer
 from flipviz.viz.app.scene import GROUPS, RunScene
 from flipviz.viz.app.session import TrainingSession
-from flipviz.viz.app.train import RunChoice, TrainPanel
+from flipviz.viz.app.train import RunChoice, TrainPanel, fmt_time
 from flipviz.viz.run_events import RunEvents
 
 log = logging.getLogger("flipviz.app")
@@ -339,18 +339,52 @@ class App:
         """A trainer is still being built (scene loading, ray casting) in the training thread."""
         return self.session.building()
 
-    def restart_with(self, choice: RunChoice) -> None:
-        """Restart with the Train tab's choice of scene (or data folder), method, configuration, steps."""
+    def restart_with(self, choice: RunChoice, client: viser.ClientHandle | None = None) -> None:
+        """Restart with the Train tab's choice of scene (or data folder), method, configuration, steps;
+        `client` (the browser that asked) is asked first when a run would be replaced or the setting is
+        sized for another device."""
         try:
             data = inside_roots(choice.data, self.browse_roots(), "data folder") if choice.data else None
         except UserError as e:  # a folder the command line did not name: refused, the run goes on
             self.train.say(f"**Not restarted:** {e}")
             return
         scene = choice.scene if choice.scene is not None else self.cfg.data.scene
-        cfg = with_preset(self.cfg, choice.preset)
-        self.restart(
-            cfg.with_settings(scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps)
+        cfg = with_preset(self.cfg, choice.preset).with_settings(
+            scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps
         )
+        question = self.restart_question(cfg)
+        if client is None or question is None:
+            self.restart(cfg)
+        else:
+            self.train.ask(client, question, lambda: self.restart(cfg))
+
+    def restart_question(self, new: AppConfig) -> str | None:
+        """What to know before `new` replaces the run (None: nothing is lost, nothing is slow)."""
+        lines, trainer = [], self.trainer
+        if trainer is not None and self.step > 0:
+            run_dir = trainer.run_dir
+            lines.append(
+                f"**Replace this run** ({self.cfg.data.scene}, {self.cfg.method}, step {self.step} of "
+                f"{trainer.total_steps})? "
+                f"Its checkpoint, metrics and recording stay in `{run_dir}`: *Compare with the previous run* "
+                "(Compare tab) brings it back beside the new one."
+            )
+        rate = self.train.pace.rate()
+        same_speed = (new.preset, new.engine.field, new.data.res) == (
+            self.cfg.preset,
+            self.cfg.engine.field,
+            self.cfg.data.res,
+        )
+        if rate and same_speed:
+            eta = fmt_time(new.engine.steps / rate)
+            lines.append(f"The new run: {new.engine.steps} steps, about {eta} at this run's pace.")
+        if new.preset == "paper" and not new.engine.device.startswith("cuda"):
+            lines.append(
+                f"**The paper setting is sized for a GPU** ({new.engine.field} field, {new.engine.n_samples} samples "
+                f"per ray, {new.engine.steps} steps), and this app runs on `{new.engine.device}`: its steps and each "
+                "evaluation of its views take minutes here (20 steps and their evaluation took 28 min on 2 cores)."
+            )
+        return "\n\n".join(lines) if lines else None
 
     def restart_with_plane(self, plane: Plane) -> None:
         """Retrain with `plane` as the mirror plane (with Flip+U unless a Flip method is running)."""
@@ -445,6 +479,7 @@ class App:
         self.mirror.build(setup)
         self.snap.rebuild()
         self.compare.refresh()
+        self.compare.follow(setup.cfg)
         self.views.unsnap_all()
         cfg = self.cfg
         self.train.show_run(

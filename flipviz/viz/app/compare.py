@@ -76,6 +76,12 @@ def run_label(cfg: TrainConfig) -> str:
     return METHOD_LABELS[cfg.method] + ("" if cfg.preset == "fast" else f" ({cfg.preset})")
 
 
+def views_of(cfg: TrainConfig) -> tuple:
+    """What makes two runs' views the same: the scene (or data folder), its inputs and its configuration."""
+    d = cfg.data
+    return d.scene, str(d.path) if d.path is not None else None, d.inputs, d.config
+
+
 def finished_runs(folders: list[Path]) -> list[Path]:
     """Run folders holding a checkpoint under `folders` (one level deep, and bench's runs/<key>), newest first."""
     found: set[Path] = set()
@@ -238,7 +244,8 @@ class ComparePanel:
             return
         if preset is not None:
             cfg = with_preset(cfg, preset)
-        out = next_free(f"{a_dir}-B-{method.replace('+', 'u')}")  # beside an earlier run B, never over it
+        slug = f"{method.replace('+', 'u')}-{cfg.preset}"  # B's own method and setting, beside A's folder
+        out = next_free(f"{a_dir}-B-{slug}")  # beside an earlier run B, never over it
         self._say(f"_Building run B ({method})..._")
 
         def build() -> None:
@@ -275,9 +282,26 @@ class ComparePanel:
         self.on_change()
 
     def clear(self) -> None:
-        """A new run A: B stays (it may be compared with the new run too); scores are dropped."""
+        """A new run A is coming: the scores are dropped (B waits for `follow`)."""
         self.scores.clear()
         self.show_status()
+
+    def follow(self, a: TrainConfig) -> None:
+        """The new run A's config: B stays when it shows the same views (it may be compared with the new run
+        too), and is unloaded when A's scene or views changed (|A - B| would compare two objects)."""
+        b = self.b
+        if b is None or views_of(b.trainer.cfg) == views_of(a):
+            return
+        self.stop()
+        self._say(
+            f"_Run B ({b.name}) was unloaded: it shows **{b.trainer.cfg.data.scene}** configuration "
+            f"{b.trainer.cfg.data.config}, the new run A **{a.data.scene}** configuration {a.data.config}. "
+            "Load or train a run B of these views to compare._"
+        )
+        log.info("compare: run B unloaded, run A's views changed")
+        if self.mode_dd.value != "off":
+            self.mode_dd.value = "off"  # (its callback tells the app the comparison went)
+        self._changed()
 
     def stop(self) -> None:
         with self._lock:

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -51,6 +53,35 @@ def step_text(step: int, total: int, asked: int) -> str:
     return text
 
 
+class Pace:
+    """Steps per second of wall time over the last `window_s` of running: the renders for the browsers,
+    the evaluations and the checkpoints included (StepEvent.elapsed_s counts the steps alone, so an ETA
+    from it ran 1.5-1.7x short). A pause or a new run starts it again."""
+
+    def __init__(self, window_s: float = 60.0) -> None:
+        self.window_s = window_s
+        self.seen: deque[tuple[float, int]] = deque()  # (monotonic time, step), oldest first
+
+    def add(self, step: int, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        if self.seen and step < self.seen[-1][1]:
+            self.seen.clear()  # the run went back (a rollback to the join): its pace starts again
+        if not self.seen or step > self.seen[-1][1]:
+            self.seen.append((now, step))
+        while len(self.seen) > 2 and now - self.seen[1][0] > self.window_s:
+            self.seen.popleft()
+
+    def clear(self) -> None:
+        self.seen.clear()
+
+    def rate(self) -> float | None:
+        """Steps per wall second (None until two steps were seen)."""
+        if len(self.seen) < 2 or self.seen[-1][0] <= self.seen[0][0]:
+            return None
+        (t0, s0), (t1, s1) = self.seen[0], self.seen[-1]
+        return (s1 - s0) / (t1 - t0)
+
+
 def psnr_scales(rng: tuple[float, float]) -> dict:
     """The PSNR chart's scales: both curves on one fixed range. The test curve is NaN between
     evaluations (uPlot joins its points with spanGaps), and uPlot's automatic range fails on a
@@ -64,7 +95,7 @@ class TrainPanel:
         server: viser.ViserServer,
         on_pause: Callable[[], None],
         on_resume: Callable[[], None],
-        on_restart: Callable[[RunChoice], None],
+        on_restart: Callable[[RunChoice, viser.ClientHandle | None], None],
     ) -> None:
         gui = server.gui
         self.progress_md = gui.add_markdown("_Starting..._")
@@ -90,6 +121,7 @@ class TrainPanel:
         )
         self._plotted: tuple | None = None  # (points, last step, evaluations) of the curves shown
         self._range: tuple[float, float] = (0.0, 1.0)
+        self.pace = Pace()  # steps per wall second, for the ETA
         self.pause_btn = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
         self.resume_btn = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY, disabled=True)
         with gui.add_folder("Restart", expand_by_default=True):
@@ -108,7 +140,7 @@ class TrainPanel:
             self.restart_md = gui.add_markdown("")
         self.pause_btn.on_click(lambda _: on_pause())
         self.resume_btn.on_click(lambda _: on_resume())
-        self.restart_btn.on_click(lambda _: on_restart(self.choice()))
+        self.restart_btn.on_click(lambda ev: on_restart(self.choice(), ev.client))
         self.scene_dd.on_update(lambda _: self._show_data_field())
         self._show_data_field()
 
@@ -127,6 +159,23 @@ class TrainPanel:
             self.setting_dd.value,
         )
 
+    def ask(self, client: viser.ClientHandle, question: str, on_yes: Callable[[], None]) -> None:
+        """Ask the browser that clicked Restart first (a modal of its own): a misplaced click replaced a
+        finished 3000-step run."""
+        gui = client.gui
+        with gui.add_modal("Restart training?") as modal:
+            gui.add_markdown(question)
+            yes = gui.add_button("Replace the run", icon=viser.Icon.REFRESH, color="orange")
+            no = gui.add_button("Keep this run", color="gray")
+
+        def answer(go: bool) -> None:
+            modal.close()
+            if go:
+                on_yes()
+
+        yes.on_click(lambda _: answer(True))
+        no.on_click(lambda _: answer(False))
+
     def say(self, text: str) -> None:
         """One line under the Restart button (why a restart was refused); cleared by the next run."""
         self.restart_md.content = text
@@ -138,6 +187,7 @@ class TrainPanel:
         self.method_dd.value, self.config_dd.value, self.steps_num.value = method, str(config), int(steps)
         self.setting_dd.value = preset
         self.restart_md.content = ""
+        self.pace.clear()
         self._show_data_field()
 
     def set_controls(self, status: str) -> None:
@@ -175,24 +225,27 @@ class TrainPanel:
         """The status text. During a restart it shows no number of the run that is going away."""
         head = f"**{setup.scene} | {setup.method} | {split_label(setup.config)}**" if setup else "**flipviz**"
         parts = [f"status: **{status}**"]
+        if status == "running" and ev is not None:
+            self.pace.add(ev.step)
+        elif status != "finished":
+            self.pace.clear()  # a pause is no part of the pace (a finished run's stays: Restart's estimate)
         if ev is not None and status not in ("restarting", "starting"):
             s = ev.scalars
-            rate = ev.step / ev.elapsed_s if ev.elapsed_s > 0 else float("nan")
+            wall = self.pace.rate()
             parts += [
                 step_text(ev.step, ev.total_steps, setup.cfg.engine.steps if setup else ev.total_steps),
                 f"loss {s.get('loss', float('nan')):.4f}",
                 f"PSNR {s.get('psnr', float('nan')):.2f} dB",
-                f"{rate:.1f} steps/s",
             ]
-            if rate > 0 and status == "running":
-                parts.append(f"ETA {fmt_time((ev.total_steps - ev.step) / rate)}")
+            if wall is not None and wall > 0 and status == "running":
+                parts.append(f"{wall:.1f} steps/s, ETA {fmt_time((ev.total_steps - ev.step) / wall)} at this pace")
             self.progress_bar.value = 100.0 * ev.step / max(1, ev.total_steps)
             if test_psnr is not None:
                 parts.append(f"test PSNR **{test_psnr:.2f} dB**")
         elif status in ("restarting", "starting"):
             self.progress_bar.value = 0.0
         if status == "running":  # the share of the machine renders take from training (nothing to share otherwise)
-            parts.append(f"browser renders {100 * render_share:.0f}% of the last 10 s")
+            parts.append(f"render thread busy {100 * render_share:.0f}% of the last 10 s (waits for a step included)")
         text = head + "\n\n" + " | ".join(parts)
         if message:
             text += f"\n\n_{message}_"
