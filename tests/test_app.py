@@ -927,6 +927,14 @@ def test_the_mirror_tab_follows_the_plane_training_refines(app):
         np.abs(app.mirror.quad.wxyz), np.abs(plane_wxyz(plane)), atol=1e-6
     )
     assert app.mirror.train_plane is not app.mirror.trail.start
+    from flipviz.geometry.symmetry import plane_error
+
+    est = app.mirror.estimate.estimate  # the run's own estimate: issue 45, measured against the plane in use
+    t = time.monotonic()
+    while f"{plane_error(est.plane, app.mirror.train_plane)[0]:.2f} deg" not in app.mirror.estimate.against.content:
+        assert time.monotonic() - t < 30, app.mirror.estimate.against.content  # (both move with training)
+        time.sleep(0.1)
+    assert "as training refined it at step" in app.mirror.estimate.against.content
 
 
 def test_restart_with_another_method(app):

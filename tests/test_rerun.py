@@ -160,16 +160,23 @@ def test_mirrored_cameras_and_steps(run):
 
 
 def test_the_refined_plane_moves_in_the_recording(run):
-    """--refine-plane (the default): the mirror plane is logged at step 0 and at every StepEvent, where the
-    event has it, with its error against the true plane as curves."""
+    """--refine-plane (the default): the mirror plane's transform is logged at step 0 and at every StepEvent,
+    where the event has it, with its error against the true plane as curves. Its square, outline and normal
+    are logged once (static, in the plane's own frame): issue 45, the scene view shows everything up to the
+    cursor, and a square logged per step stacked into opaque slabs in the web viewer."""
     rrd, keep = run["rrd"], run["keep"]
     logged = [e.step for e in keep.steps]
-    normals = rows_by_step(rrd["/world/mirror_plane/normal"], "Arrows3D:vectors")
-    assert sorted(normals) == [0, *logged]
+    poses = rows_by_step(rrd["/world/mirror_plane"], "Transform3D:mat3x3")
+    assert sorted(poses) == [0, *logged]
     last = keep.steps[-1]
     assert last.plane is not None and last.plane_err_deg is not None
-    v = np.asarray(normals[last.step][0])
-    assert v / np.linalg.norm(v) == pytest.approx(last.plane.normal, abs=1e-5)
+    R = np.asarray(poses[last.step][0], dtype=np.float64).reshape(3, 3).T  # (stored column-major)
+    assert R[:, 2] == pytest.approx(last.plane.normal, abs=1e-5)  # the frame's z: the refined normal
+    where = rows_by_step(rrd["/world/mirror_plane"], "Transform3D:translation")
+    assert where[last.step][0] == pytest.approx(last.plane.point, abs=1e-5)
+    for part, column in (("", "Mesh3D:vertex_positions"), ("/normal", "Arrows3D:vectors")):
+        rows = [b for b in rrd[f"/world/mirror_plane{part}"] if column in b.schema.names]
+        assert rows and all("step" not in b.schema.names for b in rows), part  # static: drawn once
     assert rows_by_step(rrd["/curves/plane/err_deg"], "Scalars:scalars")[last.step] == pytest.approx(
         [last.plane_err_deg]
     )

@@ -64,6 +64,7 @@ class PlaneEstimatePanel:
         gui = server.gui
         with gui.add_folder("Estimated plane") as self.folder:
             self.text = gui.add_markdown(HELP)
+            self.against = gui.add_markdown("")  # the estimate against the plane training uses now
             self.button = gui.add_button(
                 "Estimate plane",
                 icon=viser.Icon.SEARCH,
@@ -75,6 +76,17 @@ class PlaneEstimatePanel:
         self._busy = threading.Lock()  # one estimate at a time
         self.button.on_click(lambda _: self.start())
         self.use_button.on_click(lambda _: self.estimate is not None and on_use(self.estimate.plane))
+
+    def compare_with_training(self, refined_at: int | None = None) -> None:
+        """The estimate against the plane training uses now, shown above it in the tab (refined by training
+        at step `refined_at`, or where training started it: before, the line kept the starting plane)."""
+        est, plane = self.estimate, self.training_plane()
+        if est is None or plane is None:
+            self.against.content = ""
+            return
+        deg, off = plane_error(est.plane, plane)
+        which = "where training started it" if refined_at is None else f"as training refined it at step {refined_at}"
+        self.against.content = f"Against the plane training uses now ({which}): {deg:.2f} deg, offset {off:.4f}."
 
     def start(self) -> None:
         """Estimate in a thread, a clock ticking in the text meanwhile; the run's own estimate at once."""
@@ -122,6 +134,7 @@ class PlaneEstimatePanel:
         """The estimate beside the plane being dragged: plane, confidence, score against azimuth."""
         self.estimate = est
         self.use_button.disabled = est is None
+        self.compare_with_training()
         if est is None:
             self.text.content = HELP
             return
@@ -131,10 +144,6 @@ class PlaneEstimatePanel:
             f"Normal ({n[0]:.2f}, {n[1]:.2f}, {n[2]:.2f}) through ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}); "
             f"confidence **{est.confidence:.2f}** ({verdict}; trusted from {CONFIDENT:g}), {est.seconds:.0f} s.",
         ]
-        against = self.training_plane()
-        if against is not None:
-            deg, off = plane_error(est.plane, against)
-            lines.append(f"Against the training plane: {deg:.1f} deg, offset {off:.3f}.")
         lines.append(
             "The chart: the best score of the vertical planes at each normal azimuth (about up); "
             "one sharp peak for a symmetric object."

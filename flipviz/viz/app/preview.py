@@ -89,9 +89,11 @@ class LivePreview:
             self.request(delay=self.period_s)
 
     def clear(self) -> None:
+        """A new run: the last run's splats, and their count, go until its first bake."""
         with self._lock:
             self.baked = None
         self._drawn = None
+        self.status.content = "_Waiting for the new run's first bake..._"
         for cid in list(self.visible):
             self._client_scene(cid, lambda s: s.remove_by_name("/preview3d"))
         self.handles.clear()

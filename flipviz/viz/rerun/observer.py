@@ -116,6 +116,7 @@ class RerunObserver(Observer):
             str, tuple[list[int], list[np.ndarray]]
         ] = {}  # per mirrored camera: steps, c2w (not yet sent)
         self._plane_size, self._plane_moves = 1.0, False  # set by the SetupEvent
+        self._moving_planes: set[str] = set()  # planes whose shape is logged (in their own frame)
         self._series_colors = [tuple(int(255 * c) for c in rgb[:3]) for rgb in matplotlib.colormaps["tab10"].colors]
 
     # ------------------------------------------------------------------ sinks
@@ -252,8 +253,8 @@ class RerunObserver(Observer):
             static=True,
         )
         # The mirror plane used: a translucent square with its normal; the true plane: an outline. A plane
-        # that training refines (--refine-plane) moves: it is logged at step 0 here and at every step after.
-        self._plane_size = 0.6 * r
+        # that training refines (--refine-plane) moves: its transform is logged at step 0 here and at every step.
+        self._plane_size, self._moving_planes = 0.6 * r, set()
         self._plane_moves = e.plane is not None and e.cfg.flip.refine_plane
         if self._plane_moves:
             rec.set_time(STEP, sequence=0)
@@ -296,25 +297,32 @@ class RerunObserver(Observer):
         )
 
     def _log_plane(self, path: str, plane: Plane, color: tuple[int, int, int], filled: bool, static: bool) -> None:
+        """A plane: its square (translucent when `filled`), outline and normal. One that training moves is drawn
+        once in its own frame (z = 0, normal +z) and moved by a transform per step: the scene view shows all
+        data up to the cursor (for the trajectories), so a square per step stacked into opaque slabs, while a
+        transform is read at the cursor alone."""
+        if static:
+            return self._plane_shape(path, plane, color, filled)
+        if path not in self._moving_planes:
+            self._plane_shape(path, Plane(np.zeros(3), np.array([0.0, 0.0, 1.0])), color, filled)
+            self._moving_planes.add(path)
+        self.rec.log(path, rr.Transform3D(translation=plane.point, mat3x3=plane.basis()))
+
+    def _plane_shape(self, path: str, plane: Plane, color: tuple[int, int, int], filled: bool) -> None:
         quad, rec = plane.square(self._plane_size), self.rec
         if filled:
             rec.log(
                 path,
                 rr.Mesh3D(vertex_positions=quad, triangle_indices=[[0, 1, 2], [0, 2, 3]], albedo_factor=(*color, 60)),
-                static=static,
+                static=True,
             )
         rec.log(
-            f"{path}/outline",
-            rr.LineStrips3D([np.vstack([quad, quad[:1]])], colors=[color], radii=0.006),
-            static=static,
+            f"{path}/outline", rr.LineStrips3D([np.vstack([quad, quad[:1]])], colors=[color], radii=0.006), static=True
         )
-        rec.log(
-            f"{path}/normal",
-            rr.Arrows3D(
-                origins=[plane.point], vectors=[0.67 * self._plane_size * plane.normal], colors=[color], radii=0.012
-            ),
-            static=static,
+        arrow = rr.Arrows3D(
+            origins=[plane.point], vectors=[0.67 * self._plane_size * plane.normal], colors=[color], radii=0.012
         )
+        rec.log(f"{path}/normal", arrow, static=True)
 
     def _log_camera(
         self, path: str, cam: Camera, color: tuple[int, int, int], image: np.ndarray | None, pose_static: bool = True

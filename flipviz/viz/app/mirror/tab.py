@@ -317,6 +317,7 @@ class MirrorLesson:
                 self.gizmo.wxyz, self.gizmo.position = plane_wxyz(plane), plane.point
                 self.typed.show(plane, self.mirrors.up, self.mirrors.sphere.center)
                 self.plane_text.content = plane_line(plane) + " - the plane training uses now."
+            self.estimate.compare_with_training(self.run.step)
 
     def reset_plane(self) -> None:
         if self.train_plane is not None and self.gizmo is not None:
@@ -403,4 +404,4 @@ class MirrorLesson:
             cams = m.cameras(self.train_plane)
         else:
             cams = [c.with_pose(T) for c, T in zip(m.inputs, c2w)]
-        return Scoring(cams, m.flipped, names, f"BA poses (now), step {self.run.step}", None)
+        return Scoring(cams, m.flipped, names, f"BA poses, step {self.run.step}", None)  # (training's label)
