@@ -97,7 +97,8 @@ def _run_train(cfg: TrainConfig) -> int:
     check_named_files(cfg)  # before the scene is built: a refusal comes at once
     if cfg.output.out is None:
         cfg.output.out = default_run_dir(cfg)
-    trainer = make_trainer(cfg)  # inputs checked and the run folder locked before anything is written
+    say = lambda text: print(f"[flipviz] {text}", file=sys.stderr, flush=True)  # noqa: E731 (setup, before the bar)
+    trainer = make_trainer(cfg, on_phase=say)  # inputs checked, the run folder locked before anything is written
     trainer.add_observer(ProgressObserver())
     rerun = None
     try:

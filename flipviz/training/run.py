@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from flipviz.data.dataset import SceneData
@@ -15,19 +15,24 @@ from flipviz.training.trainer import Trainer
 log = logging.getLogger("flipviz.training")
 
 
-def make_trainer(cfg: TrainConfig, scene: SceneData | None = None, resume_unfinished: bool = False) -> Trainer:
-    """A Trainer for `cfg`. With `resume_unfinished` (the bench, whose run folders are its own), a
-    run folder that already holds a checkpoint (a run that was killed) resumes from it, and any other
-    (an unreadable checkpoint, a failed run's leftovers) starts over in place."""
+def make_trainer(
+    cfg: TrainConfig,
+    scene: SceneData | None = None,
+    resume_unfinished: bool = False,
+    on_phase: Callable[[str], None] | None = None,
+) -> Trainer:
+    """A Trainer for `cfg` (`on_phase`: Trainer's). With `resume_unfinished` (the bench, whose run folders
+    are its own), a run folder that already holds a checkpoint (a run that was killed) resumes from it, and
+    any other (an unreadable checkpoint, a failed run's leftovers) starts over in place."""
     if not resume_unfinished or cfg.output.resume is not None:
-        return Trainer(cfg, scene)
+        return Trainer(cfg, scene, on_phase)
     ckpt = Path(cfg.output.out) / CHECKPOINT_NAME if cfg.output.out is not None else None
     if ckpt is not None and ckpt.is_file():
         try:
-            return Trainer(cfg.with_settings(resume=ckpt), scene)
+            return Trainer(cfg.with_settings(resume=ckpt), scene, on_phase)
         except Exception as e:
             log.warning("cannot resume from %s (%s: %s); starting over", ckpt, type(e).__name__, e)
-    return Trainer(cfg.with_settings(overwrite=True), scene)
+    return Trainer(cfg.with_settings(overwrite=True), scene, on_phase)
 
 
 def train(

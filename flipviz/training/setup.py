@@ -18,6 +18,7 @@ flip       = what Just Flip moves and how it scores a batch             (flip.py
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -144,9 +145,11 @@ def build_run(
     saved_estimate: Path | None = None,
     estimate: PlaneEstimate | None = None,
     model: RadianceModel | None = None,
+    say: Callable[[str], None] = lambda _: None,
 ) -> RunSetup:
     """Everything a run trains with. `saved_estimate`: the plane.json of a run being resumed; `estimate`:
-    auto's plane, estimated from the run's own `model` after its input-only steps (that field trains on)."""
+    auto's plane, estimated from the run's own `model` after its input-only steps (that field trains on);
+    `say`: hears what takes long (Trainer's on_phase)."""
     check_image_size(*scene.resolution, f"the images of {scene.source or scene.name}")
     device = torch.device(cfg.engine.device)
     spec = method_spec(cfg)
@@ -157,6 +160,7 @@ def build_run(
             estimate = read_estimate(saved_estimate)
             warm_up = mirrors_join_at(cfg) if estimate is None else 0
         else:
+            say("estimating the mirror plane: a short fit of the inputs, then the search (10-20 s on 2 cores)")
             estimate = estimate_or_read(
                 split.inputs, scene, cfg.engine.device, cfg.engine.seed, saved_estimate, cfg.flip.plane_file
             )

@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
@@ -59,6 +60,7 @@ from flipviz.training.setup import (
 )
 
 log = logging.getLogger("flipviz.training")
+WARM_UP_SAID = 50  # on_phase hears every this many warm-up steps
 
 
 class NonFiniteLoss(RuntimeError):
@@ -75,9 +77,13 @@ def default_run_dir(cfg: TrainConfig) -> Path:
 
 
 class Trainer:
-    def __init__(self, cfg: TrainConfig, scene: SceneData | None = None) -> None:
-        """A run to train (a finished one opens to look at as a `saved_run.Run`, with no trainer)."""
+    def __init__(
+        self, cfg: TrainConfig, scene: SceneData | None = None, on_phase: Callable[[str], None] | None = None
+    ) -> None:
+        """A run to train (a finished one opens to look at as a `saved_run.Run`, with no trainer). `on_phase`
+        hears, in words, what setup is doing before the first event (the auto plane's warm-up: 10-30 s)."""
         self.cfg = cfg.validate()
+        self._say = on_phase or (lambda _: None)
         self.run_dir = Path(cfg.output.out) if cfg.output.out is not None else default_run_dir(cfg)
         self._lock_file = FolderLock(self.run_dir)  # the run folder, ours until run() ends
         try:
@@ -95,10 +101,11 @@ class Trainer:
         keep_freed_memory()  # a step's large temporaries reuse the last step's memory (runtime.py)
         torch.manual_seed(cfg.engine.seed)
         self._gen = torch.Generator().manual_seed(cfg.engine.seed)
+        self._say("loading the scene, choosing its views and mirroring the inputs")
         self.scene = scene if scene is not None else load_scene_for(cfg)
         resumed = Path(cfg.output.resume) if cfg.output.resume is not None else None  # a checkpoint or its run folder
         saved = (resumed if resumed.is_dir() else resumed.parent) / PLANE_FILE if resumed is not None else None
-        rs = build_run(cfg, self.scene, saved)
+        rs = build_run(cfg, self.scene, saved, say=self._say)
         self._adopt(rs)
         self.opt_field = self.model.make_optimizer()
         self.step = 0
@@ -109,7 +116,10 @@ class Trainer:
         self._running = threading.Event()
         self._running.set()  # set = not paused
         self._stop = threading.Event()
-        while self.step < self.flip.warm_up:  # steps before the run is whole (flip.py: auto's plane from the field)
+        warm_up = self.flip.warm_up  # steps before the run is whole (flip.py: auto's plane from the field)
+        while self.step < warm_up:
+            if self.step % WARM_UP_SAID == 0:
+                self._say(f"warm-up for the auto plane: step {self.step} / {warm_up} of the inputs alone")
             self._step()
         field_step = self.step - self.field_start  # where the mirrors joined: what Action.ROLL_BACK returns to
         self._joined = ckpt.FieldSnapshot.take(self.model, self.opt_field, self._gen, field_step)
@@ -213,6 +223,7 @@ class Trainer:
     def _act(self, action: Action) -> None:
         """What Flip asked for after a step (flip.py: Action)."""
         if action is Action.JOIN:  # the run built again around its field (setup.py: join_mirrors)
+            self._say("estimating the mirror plane from the warmed-up field, then the mirrored views join")
             rs = join_mirrors(self.cfg, self.scene, self.model, self.step)
             self._adopt(rs)
             if rs.start_over:  # a fresh field and sampler from step 0, seeded as B/L's

@@ -77,6 +77,7 @@ class TrainingSession(Observer):
                 return False
             self.restarts += 1
             self.status = "restarting"
+            log.warning("restarting: the current run stops (its checkpoint stays in its folder)")
             self._stop_run()
             for ckpt in prune_checkpoints(self.run_dirs, self._checkpoints_bytes):
                 log.info("deleted %s (over --restart-checkpoints-mb)", ckpt)
@@ -134,7 +135,7 @@ class TrainingSession(Observer):
         tcfg = train_config(cfg)
         scene = self._preloaded[1] if self._preloaded and self._preloaded[0] == _scene_key(cfg) else None
         try:
-            trainer = Trainer(tcfg, scene=scene)
+            trainer = Trainer(tcfg, scene=scene, on_phase=lambda text: self._phase(gen, text))
         except Exception as e:  # bad data / plane: shown in the app, which keeps serving
             self.status, self.message = "error", f"{type(e).__name__}: {e}".splitlines()[0]
             log.error("could not start training: %s", self.message)
@@ -155,7 +156,8 @@ class TrainingSession(Observer):
                 return
             self.trainer = trainer
             self.run_dirs.append(trainer.run_dir)
-            self.status = "running"
+            self.status, self.message = "running", ""
+        log.warning("training %s in %s", tcfg.method, trainer.run_dir)
         trainer.run()
 
     # ---- what the app reads -----------------------------------------------------------------
@@ -173,6 +175,11 @@ class TrainingSession(Observer):
         current = self.run_dir()
         return next((d for d in reversed(self.run_dirs) if d != current and (d / CHECKPOINT_NAME).is_file()), None)
 
+    def _phase(self, gen: int, text: str) -> None:
+        """What the trainer being built is doing (its warm-up: 10-30 s), in the Train tab's status."""
+        if gen == self._gen:
+            self.message = text
+
     def on_end(self, event: EndEvent) -> None:
         self.status = event.status
         self.message = event.message
@@ -180,3 +187,4 @@ class TrainingSession(Observer):
             self.message = f"unobserved views PSNR {event.metrics['psnr']:.2f} dB" + (
                 f" ({event.message})" if event.message else ""
             )
+        log.warning("run %s at step %d%s", event.status, event.step, f": {self.message}" if self.message else "")
