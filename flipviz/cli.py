@@ -85,6 +85,7 @@ def _run_train(cfg: TrainConfig) -> int:
     """`flipviz train`: a progress bar, the Rerun recording, one summary line, how to open it."""
     import logging
 
+    from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     from flipviz.training.artifacts import check_named_files
@@ -97,7 +98,11 @@ def _run_train(cfg: TrainConfig) -> int:
     check_named_files(cfg)  # before the scene is built: a refusal comes at once
     if cfg.output.out is None:
         cfg.output.out = default_run_dir(cfg)
-    say = lambda text: print(f"[flipviz] {text}", file=sys.stderr, flush=True)  # noqa: E731 (setup, before the bar)
+
+    def say(text: str) -> None:  # what setup and a slow evaluation do (a line above the bar; "": over)
+        if text:
+            tqdm.write(f"[flipviz] {text}", file=sys.stderr)
+
     trainer = make_trainer(cfg, on_phase=say)  # inputs checked, the run folder locked before anything is written
     trainer.add_observer(ProgressObserver())
     rerun = None

@@ -214,7 +214,7 @@ def test_auto_estimates_the_plane_from_the_runs_own_field_then_the_mirrors_join(
     said: list[str] = []  # issue 45: what setup does before the first event, in words (flipviz train prints it)
     tr = Trainer(TrainConfig.from_settings(**kw, out=tmp_path / "a", checkpoint_every=80), on_phase=said.append)
     K = 40
-    assert said[0].startswith("loading the scene") and "step 0 / 40" in said[1], said
+    assert said[0] == "warm-up for the auto plane: step 0 / 40 of the inputs alone", said
     assert said[-1].startswith("estimating the mirror plane from the warmed-up field"), said
     assert tr.cfg.flip.mirror_plane == "auto"
     assert tr.step == K and tr.plane_estimate.meta["field_steps"] == K and "fit_steps" not in tr.plane_estimate.meta

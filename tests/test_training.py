@@ -210,6 +210,37 @@ def test_ctrl_c_in_the_loop_and_in_the_final_evaluation(chair, tmp_path):
     assert load_checkpoint(tmp_path / "run")["step"] == tr.step == 15
 
 
+def test_a_stop_ends_an_evaluation_between_chunks_of_rays_and_keeps_the_checkpoint(chair, tmp_path):
+    """Issue 45 item 1: the paper's NeRF on a CPU rendered 16 views for 28 minutes after a restart, with no
+    way out. A stop during the final evaluation ends it before the next chunk of rays of the view being
+    rendered: the run is stopped, its checkpoint kept, no scores written."""
+    from flipviz.model.radiance import RenderCancelled
+
+    cfg = TrainConfig.from_settings(
+        method="flip+u", steps=20, log_every=5, checkpoint_every=0, images_every=0, out=tmp_path / "run", **TINY
+    )
+    tr = Trainer(cfg, scene=chair)
+    cam = tr.split.tests[0].camera
+    asked = []
+
+    def cancel() -> bool:  # a stop that arrives while the third chunk is asked for
+        asked.append(1)
+        return len(asked) == 3
+
+    with pytest.raises(RenderCancelled, match=f"stopped after {2 * 64} of {cam.width * cam.height} rays"):
+        tr.model.render_image(cam, chunk=64, cancel=cancel)
+
+    class StopAtTheEnd(Observer):  # the user restarts while the final evaluation runs
+        def on_step(self, e):
+            if e.step == e.total_steps:
+                tr.stop()
+
+    tr.add_observer(StopAtTheEnd())
+    m = tr.run()
+    assert m["status"] == "stopped" and "stopped during the final evaluation" in m["message"], m
+    assert "psnr" not in m and load_checkpoint(tmp_path / "run")["step"] == 20
+
+
 class PauseAt(Observer):
     """Pauses the trainer from its own thread right after step `at`; every StepEvent sets `stepped`."""
 

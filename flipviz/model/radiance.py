@@ -18,6 +18,7 @@ included) into a fresh model of the same config.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -30,6 +31,10 @@ from flipviz.model.grid_field import GridConfig
 from flipviz.model.nerf_field import NerfConfig
 from flipviz.model.optim import decay_lr
 from flipviz.model.renderer import render_rays
+
+
+class RenderCancelled(Exception):
+    """A render stopped between its chunks of rays: the run was asked to stop (render_image's `cancel`)."""
 
 
 @dataclass
@@ -111,11 +116,16 @@ class RadianceModel(nn.Module):
         return out
 
     @torch.no_grad()
-    def render_image(self, camera: Camera, chunk: int = 16384) -> dict[str, np.ndarray]:
-        """Render a whole image (no grad): rgb (H,W,3), depth, opacity (and beta2) (H,W) float32."""
+    def render_image(
+        self, camera: Camera, chunk: int = 16384, cancel: Callable[[], bool] | None = None
+    ) -> dict[str, np.ndarray]:
+        """Render a whole image (no grad): rgb (H,W,3), depth, opacity (and beta2) (H,W) float32. `cancel` is
+        asked before each chunk of rays: True raises RenderCancelled (a NeRF view on a CPU takes minutes)."""
         o, d = (torch.from_numpy(a).to(self.device) for a in camera.rays())
         parts: dict[str, list[Tensor]] = {}
         for i in range(0, o.shape[0], chunk):
+            if cancel is not None and cancel():
+                raise RenderCancelled(f"{camera.name}: stopped after {i} of {o.shape[0]} rays")
             for k, v in self.render_rays(o[i : i + chunk], d[i : i + chunk], training=False).items():
                 parts.setdefault(k, []).append(v)
         shape = (camera.height, camera.width)

@@ -34,6 +34,7 @@ from flipviz.errors import UserError
 from flipviz.files import FolderLock, cannot_write, signals_deferred
 from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.model.objective import psnr
+from flipviz.model.radiance import RenderCancelled
 from flipviz.runtime import keep_freed_memory
 from flipviz.training import artifacts
 from flipviz.training import checkpoint as ckpt
@@ -61,6 +62,7 @@ from flipviz.training.setup import (
 
 log = logging.getLogger("flipviz.training")
 WARM_UP_SAID = 50  # on_phase hears every this many warm-up steps
+SLOW_EVALUATION_S = 2.0  # an evaluation running longer says which view it is at
 
 
 class NonFiniteLoss(RuntimeError):
@@ -101,7 +103,6 @@ class Trainer:
         keep_freed_memory()  # a step's large temporaries reuse the last step's memory (runtime.py)
         torch.manual_seed(cfg.engine.seed)
         self._gen = torch.Generator().manual_seed(cfg.engine.seed)
-        self._say("loading the scene, choosing its views and mirroring the inputs")
         self.scene = scene if scene is not None else load_scene_for(cfg)
         resumed = Path(cfg.output.resume) if cfg.output.resume is not None else None  # a checkpoint or its run folder
         saved = (resumed if resumed.is_dir() else resumed.parent) / PLANE_FILE if resumed is not None else None
@@ -156,11 +157,28 @@ class Trainer:
         self._running.set()  # a paused loop must wake up to stop
 
     @torch.no_grad()
-    def render(self, camera: Camera, outputs=("rgb", "depth", "opacity", "beta2")) -> dict[str, np.ndarray]:
-        """Render a full image from `camera` with the current field; thread-safe."""
+    def render(
+        self, camera: Camera, outputs=("rgb", "depth", "opacity", "beta2"), cancellable: bool = False
+    ) -> dict[str, np.ndarray]:
+        """Render a full image from `camera` with the current field; thread-safe. `cancellable`: a stop
+        (stop()) ends it between chunks of rays with RenderCancelled (the run's own evaluations)."""
         with self._lock:
-            out = self.model.render_image(camera)
+            out = self.model.render_image(camera, cancel=self._stop.is_set if cancellable else None)
         return {k: out[k] for k in outputs if k in out}
+
+    def _evaluation(self, what: str, n: int) -> Callable[[Camera], dict[str, np.ndarray]]:
+        """`render` for an evaluation of `n` views: a stop ends it within a chunk of rays, and once it has
+        taken longer than SLOW_EVALUATION_S, on_phase hears which view it is at (the paper's NeRF on a CPU:
+        minutes a view)."""
+        t0, done = time.monotonic(), [0]
+
+        def render(camera: Camera) -> dict[str, np.ndarray]:
+            done[0] += 1
+            if time.monotonic() - t0 > SLOW_EVALUATION_S:
+                self._say(f"{what}: view {done[0]} of {n} ({time.monotonic() - t0:.0f} s so far)")
+            return self.render(camera, cancellable=True)
+
+        return render
 
     @torch.no_grad()
     def point_cloud(self, min_alpha: float = 0.05, max_points: int = 150_000) -> dict[str, np.ndarray]:
@@ -277,6 +295,7 @@ class Trainer:
                     and self.step < self.total_steps
                 ):
                     self._emit("on_images", self._images_event())
+                    self._say("")  # (what it said of a slow evaluation is over)
                 if cfg.output.checkpoint_every > 0 and self.step % cfg.output.checkpoint_every == 0:
                     self.save_checkpoint()
         except NonFiniteLoss as e:
@@ -284,6 +303,8 @@ class Trainer:
             log.error("%s", message)
         except KeyboardInterrupt:
             status, message = "stopped", "interrupted"
+        except RenderCancelled:  # stopped during a periodic evaluation
+            status = "stopped"
         except UserError as e:  # e.g. the disk is full: one line, the last good checkpoint stays
             status, message = "error", str(e)
         except Exception as e:
@@ -301,9 +322,9 @@ class Trainer:
                     renders = self.render_tests()  # rendered once, for the scores and the last images
                     metrics = self.evaluate(renders)
                     self._emit("on_images", self._images_event(renders))
-        except KeyboardInterrupt:  # a second Ctrl-C skips the evaluation, keeps the checkpoint
+        except (KeyboardInterrupt, RenderCancelled):  # a second Ctrl-C, or a stop: no scores, the checkpoint stays
             status = "stopped"
-            message = f"interrupted during the final evaluation; checkpoint kept in {self.run_dir}"
+            message = f"stopped during the final evaluation; checkpoint kept in {self.run_dir}"
             metrics = {}
         except UserError as e:
             status, message, metrics = "error", str(e), {}
@@ -316,7 +337,8 @@ class Trainer:
     # ------------------------------------------------------------------ evaluation
     def render_tests(self) -> list[dict[str, np.ndarray]]:
         """Renders (rgb, depth, opacity, beta2) of the unobserved test views, in split order."""
-        return [self.render(v.camera) for v in self.split.tests]
+        render = self._evaluation("rendering the unobserved views", len(self.split.tests))
+        return [render(v.camera) for v in self.split.tests]
 
     def evaluate(self, renders: list[dict[str, np.ndarray]] | None = None, write: bool = True) -> dict:
         """Score the run (cfg.eval: the unobserved test views at their poses, `renders` when given; or the
@@ -326,7 +348,8 @@ class Trainer:
         tests = evaluation_views(self.cfg, self.scene, self.split)
         if e.eval_views != "unobserved" or e.eval_tune_steps > 0 or e.eval_every > 1 or renders is None:
             align = self.flip.test_alignment()
-            renders = eval_renders(self.render, self.model, tests, e.eval_tune_steps, align, self.cfg.engine.seed)
+            render = self._evaluation("evaluating", len(tests))
+            renders = eval_renders(render, self.model, tests, e.eval_tune_steps, align, self.cfg.engine.seed)
         m = ev.score_renders(self.scene, tests, renders)
         m.update(train_seconds=self.train_seconds, steps=self.step, scored_views=len(tests), **self.report())
         if write:
@@ -411,4 +434,6 @@ class Trainer:
     def _images_event(self, test_renders: list[dict[str, np.ndarray]] | None = None) -> ImagesEvent:
         """Test views and mirrored views with the current field (`test_renders`: render_tests(), if made)."""
         mirrors = list(zip(self.training.mirror_views, self.flip.mirror_cameras()))
-        return ev.images_event(self.step, self.render, self.split.tests, mirrors, test_renders)
+        n = len(mirrors) + (0 if test_renders is not None else len(self.split.tests))
+        render = self._evaluation(f"step {self.step}: rendering the test and mirrored views", n)
+        return ev.images_event(self.step, render, self.split.tests, mirrors, test_renders)

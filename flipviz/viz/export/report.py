@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import base64
 import io
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -24,6 +25,7 @@ import jinja2
 import numpy as np
 import tyro
 from markdown_it import MarkdownIt
+from tqdm import tqdm
 
 from flipviz.data.dataset import Plane
 from flipviz.data.images import to_uint8
@@ -248,6 +250,9 @@ def run_page(cfg: ReportConfig) -> str:
     from flipviz.viz.export.video import GifFrames, GroundTruth, compose_row, render_frames
 
     run = open_run(cfg.run, cfg.device)
+    views = tqdm(  # one bar over the views it renders (the camera path's frames have their own)
+        total=len(run.split.tests) + len(run.mirror_views), desc="report: rendering views", unit="view", file=sys.stderr
+    )
     mpath = run.run_dir / "metrics.json"
     metrics = json.loads(mpath.read_text()) if mpath.is_file() else {}
     setup = run.setup_event
@@ -262,6 +267,7 @@ def run_page(cfg: ReportConfig) -> str:
     for v in run.split.tests:
         cam = v.camera.resized(cfg.res)
         tests.append(Figure(png_uri(compose_row(v.name, run.render(cam), gt(cam)))))
+        views.update()
     sections.append(
         Section(
             "Unobserved views",
@@ -276,6 +282,7 @@ def run_page(cfg: ReportConfig) -> str:
     mirrors = []
     for view, cam in zip(run.mirror_views, run.mirror_cameras()):
         out = run.render(cam)
+        views.update()
         panels = [to_uint8(view.image), to_uint8(out["rgb"])]
         if out.get("beta2") is not None:
             panels.append(palette.colormap(out["beta2"], *palette.BETA2_RANGE))
@@ -297,10 +304,11 @@ def run_page(cfg: ReportConfig) -> str:
                 mirrors,
             )
         )
+    views.close()
     if cfg.gif_frames > 0:
         small = GifFrames(step=1, max_panel=GIF_WIDTH)
         cams = [c.resized(min(cfg.res, GIF_WIDTH)) for c in unobserved_path(setup, cfg.gif_frames)]
-        for _ in small.keep(render_frames([(label, run.render)], cams, gt, progress=False)):
+        for _ in small.keep(render_frames([(label, run.render)], cams, gt, progress=True)):
             pass
         sections.append(Section("Across the unobserved side", "", [Figure(data_uri(small.gif_bytes(8), "image/gif"))]))
     return page(f"flipviz run {run.run_dir.name}", sections)
