@@ -1386,3 +1386,22 @@ def test_the_eta_comes_from_wall_time_per_step_evaluations_included():
     assert pace.rate() == pytest.approx((200 - 101) / (100.0 - 20.0))
     pace.add(50, now=101.0)  # back to the join: a fresh pace
     assert pace.rate() is None
+
+
+def test_beta2_in_3d_colours_the_doubted_cells_over_the_object_in_grey():
+    """Issue 45: beta^2 in 3D was a blob on the chair (every cell at one opacity, nearly all near the floor).
+    The cells the model doubts most are coloured and opaque; the object's other solid cells faint grey; the
+    faint cells with an ordinary beta^2 are not drawn."""
+    from flipviz.viz.app.preview import SHAPE_OPACITY, beta2_splats
+
+    n = 1000
+    solid = np.arange(n) < 500
+    beta2 = np.full(n, 0.01)
+    beta2[900:950] = 0.5  # a ghost no input saw: faint cells with a high variance
+    baked = {"points": np.random.default_rng(0).normal(size=(n, 3)), "solid": solid, "beta2": beta2, "cell": 0.02}
+    splats, (lo, hi, label) = beta2_splats(baked)
+    assert len(splats) == 500 + 50 and lo == pytest.approx(-2.0) and hi == pytest.approx(np.log10(0.5), abs=0.01)
+    grey, ghost = splats.opacities[:500], splats.opacities[500:]
+    assert np.all(grey == np.float32(SHAPE_OPACITY)) and np.all(splats.rgbs[:500] == 190)
+    assert np.allclose(ghost, 1.0) and np.allclose(splats.centers[500:], baked["points"][900:950])
+    assert "top 25%" in label

@@ -215,6 +215,16 @@ def test_2_live_3d_preview_draws_without_server_renders(app, browser):
     h, w = changed.shape  # the object sits where the camera looks: the splats' pixels are around the middle
     assert abs(rows.mean() / h - 0.5) < 0.25 and abs(cols.mean() / w - 0.5) < 0.25, (rows.mean() / h, cols.mean() / w)
     checkbox(browser, "Live 3D preview", True)
+    rgb_splats, before = app.preview._drawn, viewport(shot(browser, "2_rgb"))
+    choose(browser, "Preview colour", "beta^2")  # issue 45: readable on the chair, not a blob of one opacity
+    wait_until(lambda: app.preview._drawn is not rgb_splats and app.preview.colorbar.visible, 30, what="beta^2")
+    drawn_b2 = app.preview._drawn
+    wait_view(browser, "2_beta2", lambda i: (np.abs(i.astype(int) - before).max(-1) > 40).mean() > 0.002, 30)
+    from flipviz.viz.app.preview import SHAPE_OPACITY
+
+    coloured = int((drawn_b2.opacities != np.float32(SHAPE_OPACITY)).sum())  # the rest: the object in faint grey
+    assert 0 < coloured <= 0.26 * len(app.preview.baked["points"]), (coloured, len(app.preview.baked["points"]))
+    choose(browser, "Preview colour", "RGB")
     tab(browser, "Train")
     checkbox(browser, "Render my view", True)
 

@@ -46,7 +46,6 @@ def series_color(i: int, n: int) -> RGB:
 SCALAR_CMAP = "viridis"  # depth, opacity, beta^2, |error|, disagreement
 BETA2_RANGE = (0.0, 0.1)  # fixed, so frames compare; its floor beta_min^2 = 0.01; at the NLL optimum
 # beta^2 = ||C - C_hat||^2 (Sec. IV-C), and most symmetry-breaking pixels on the chair stay below 0.1
-BETA2_LOG10_RANGE = (-2.0, 0.0)  # per-cell beta^2 in the 3D preview: beta_min^2 = 0.01 .. 1, log scale
 ERROR_RANGE = (0.0, 0.5)  # |render - reference|, mean over RGB
 OPACITY_RANGE = (0.0, 1.0)
 

@@ -27,7 +27,35 @@ from flipviz.viz.splats import Splats, cells_to_splats, solid_splats
 COLOURS = ("RGB", "opacity", "beta^2")
 STYLES = ("splats", "points")
 POINT_BYTES = 9  # float16 xyz + uint8 rgb per point
-MAPPED_FLOOR = 0.6  # the least opacity of a splat coloured by a scale (opacity, beta^2): its colour must read
+MAPPED_FLOOR = 0.6  # the least opacity of a splat coloured by opacity: its colour must read
+BETA2_SHOWN_PERCENT = 25  # beta^2 in 3D: the cells the model is least sure of, coloured (beta2_splats)
+SHAPE_OPACITY = 0.12  # ... over the object's other solid cells in faint grey
+BETA2_LEAST_SPAN = 0.5  # log10: the scale spans at least a factor of 3 in beta^2
+
+
+def beta2_splats(baked: dict) -> tuple[Splats, tuple[float, float, str]]:
+    """beta^2 in 3D, readable: the quarter of the baked cells the model is least sure of, coloured on this
+    bake's own log scale (its 75th percentile up to its maximum) and more opaque the higher they are, over
+    the object's solid cells in faint grey for its shape. Every cell at one opacity was a blob: on a
+    symmetric object (the chair) nearly all beta^2 sit near the floor beta_min^2, and the faint cells fill
+    the object's box."""
+    log_b2, cell = np.log10(np.asarray(baked["beta2"], np.float64)), float(baked["cell"])
+    lo = float(np.percentile(log_b2, 100 - BETA2_SHOWN_PERCENT))
+    hi = max(float(log_b2.max()), lo + BETA2_LEAST_SPAN)  # a nearly even field stays dark and faint
+    t = np.clip((log_b2 - lo) / (hi - lo), 0.0, 1.0)
+    doubted, shape = t > 0, baked["solid"] & (t <= 0)
+    grey = np.full((int(shape.sum()), 3), 190, np.uint8)
+    splats = cells_to_splats(
+        np.concatenate([baked["points"][shape], baked["points"][doubted]]),
+        np.concatenate([grey, palette.colormap(log_b2[doubted], lo, hi)]),
+        np.concatenate([np.full(len(grey), SHAPE_OPACITY, np.float32), 0.25 + 0.75 * t[doubted]]),
+        cell,
+    )
+    return splats, (
+        round(lo, 2),
+        round(hi, 2),
+        f"log10 beta^2 per cell: its top {BETA2_SHOWN_PERCENT}% (grey: the object)",
+    )
 
 
 class LivePreview:
@@ -103,17 +131,12 @@ class LivePreview:
         """The cells to draw for the chosen colouring, as splats, and the colour scale.
 
         RGB and opacity show the solid cells; beta^2 adds the faint cells the model is most unsure
-        of, on a log scale from beta_min^2 up (per-cell variances span decades). RGB splats have
-        the cells' own opacity; colour-mapped ones at least MAPPED_FLOOR, so that their colour reads."""
+        of, on a log scale (per-cell variances span decades). RGB splats have
+        the cells' own opacity; opacity-coloured ones at least MAPPED_FLOOR, so that their colour reads; beta^2 ones
+        as beta2_splats draws them."""
         which, solid, cell = self.colour.value, baked["solid"], float(baked["cell"])
         if which == "beta^2" and "beta2" in baked:
-            lo, hi = palette.BETA2_LOG10_RANGE
-            c = palette.colormap(np.log10(baked["beta2"]), lo, hi)
-            return cells_to_splats(baked["points"], c, baked["alpha"], cell, MAPPED_FLOOR), (
-                lo,
-                hi,
-                "log10 beta^2 per cell",
-            )
+            return beta2_splats(baked)
         alpha = baked["alpha"][solid]
         if which == "opacity":
             c = palette.colormap(alpha, 0.0, 1.0)
