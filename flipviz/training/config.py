@@ -126,8 +126,7 @@ class EngineConfig:
     field: Literal["grid", "nerf"] = "grid"
     """grid: fast dense voxel grid (default); nerf: vanilla NeRF MLP, the paper's setting."""
     n_samples: Samples = 64
-    """Samples per ray, in training and rendering, 2..1024. Measured on the chair at 100 px: 64 gives the
-    same held-out PSNR as 128 (27.1 dB) at half the time."""
+    """Samples per ray, in training and rendering, 2..1024 (why 64: docs/METHOD.md#defaults)."""
     grid_res: GridRes = None
     """Grid field: voxels along the longest side, coarse to fine (None: the field's default)."""
     background: Literal["white", "learned", "last"] = "white"
@@ -155,79 +154,44 @@ class FlipConfig:
     built-in's true plane) | 'px,py,pz;nx,ny,nz' (a point and a normal)."""
     mirror_pose: Literal["reflect", "lookat"] = "reflect"
     """Initial mirrored poses: reflect (each camera reflected whole through the plane: exact for an object
-    symmetric about it, on any trajectory) or lookat (the paper: reflect the centre, back onto the sphere,
-    look at its centre; the same when the plane holds the sphere centre and the cameras look at it).
-    Measured on the turned chair, configuration 1, true plane: 22.76 vs 18.51 dB (studies/bench_plane.py)."""
+    symmetric about it, on any trajectory) or lookat (the paper: reflect the centre, back onto the sphere, look
+    at its centre). docs/METHOD.md#defaults."""
     plane_file: Path | None = None
     """With --mirror-plane auto: read the estimate from this plane.json when it exists (another run's on
     the same inputs, e.g. Flip beside Flip+U), else estimate it and write it there as well."""
     estimate_after: Annotated[int, Range(0, 10_000_000)] = 150
-    """With --mirror-plane auto and the grid field: the steps the run trains on its inputs alone before it
-    estimates the plane from its own field; the mirrored views join then, and their schedules (the NLL's
-    warm-up, BA's and the plane's starts, and the field's lr with --join-lr restart) count from there.
-    0, a run whose first quarter is shorter (under 600 steps at 150), or --field nerf (an MLP shows
-    little surface that early): a separate short fit estimates the plane before training (10-12 s on 2
-    cores; the search from the run's field takes 1.5-3 s) and the mirrors train from step 0. 150 steps
-    gave estimates as confident as the separate fit's on the chair's configuration 1 (0.28-0.30 over 5 seeds at 600
-    steps, 0.31-0.35 over 3 at 3000), and 100 steps less so (0.18-0.20): chosen on the estimate's own
-    score, never on a test view or the true plane."""
+    """With --mirror-plane auto and the grid field: the steps the inputs train alone before the plane is
+    estimated from the run's own field and the mirrored views join (their schedules count from there); 0, a
+    short run or --field nerf: a separate short fit estimates it first. docs/METHOD.md#defaults."""
     join_lr: Literal["restart", "continue"] = "restart"
-    """When the mirrored views join after --estimate-after: the field's learning-rate decay restarts
-    there (the unobserved side they bring is learnt from the full lr, as in a run that had them from step
-    0) or continues. Chosen on held-out orbit views (3 indices past each test view, never scored by the
-    protocol), configuration 1: restart / continue gave 24.35 / 23.97 dB on the chair (configurations
-    5 and 6: 24.07 / 23.72, 23.96 / 23.72), 23.73 / 23.45 on the turned chair, 21.92 / 21.69 on the
-    truck and 28.38 / 28.07 on the lamp (the mug's mirrors are dropped: the same run). With the true
-    plane from step 0, as a diagnostic only, the chair gave 24.41 / 24.05 / 23.97: restart closes the
-    gap the late join left (studies/bench_join_lr.py, docs/results/join_lr)."""
+    """When the mirrored views join after --estimate-after: the field's learning-rate decay restarts there,
+    or continues. docs/METHOD.md#defaults."""
     unconfident_plane: Literal["drop", "use"] = "use"
-    """With --mirror-plane auto, when the estimate is not confident (geometry/symmetry.py: CONFIDENT): use
-    (train with its mirrors, as with a confident one: the agreement gate, --disagreement-limit, drops them
-    mid-training if they disagree with the inputs, and --after-drop restart then trains the inputs afresh)
-    or drop (train on the inputs only from the start, as B/L does). docs/results/agreement."""
+    """With --mirror-plane auto and an estimate that is not confident: use (train its mirrors; the agreement
+    gate drops them if they disagree with the inputs) or drop (train on the inputs only, as B/L)."""
     disagreement_limit: Annotated[float, Range(1.0, float("inf"))] = 3.25
-    """Flip methods: once the NLL is on, the mirrored views are dropped (training goes on with the inputs)
-    when their squared error on the object exceeds this many times the inputs' (training/flip.py:
-    Agreement); inf: never. Tuned on the training batches of the built-ins chair, truck, mug and lamp,
-    configurations 1 and 4 (studies/bench_agreement.py, docs/results/agreement/live), with the mirrors
-    joining after --estimate-after 150 of 600 steps: from the NLL's start on, the symmetric chair and truck with a plane
-    within 1° of theirs never went above 2.41; the mug (no mirror symmetry) and the truck's configuration 4
-    (its estimate 88° off) were at 4.37 or more. 3.25 is the geometric mean of the two. With the mirrors
-    from step 0 (the estimate from a separate fit), the symmetric runs stayed under 1.48 and the mug
-    passed 2 at steps 160-240 (the limit was 2.0 then)."""
+    """Flip methods, once the NLL is on: every kept mirrored view is dropped when their pooled squared error
+    on the object exceeds this many times the inputs' (training/flip.py: Agreement); inf: never.
+    docs/METHOD.md#defaults."""
     mirror_disagreement_limit: Annotated[float, Range(1.0, float("inf"))] = 6.0
-    """Flip methods: once the NLL is on, a single mirrored view is dropped (its rays leave the sampler, its
-    pose freezes; the others train on) when its own squared error on the object exceeds this many times the
-    inputs'; inf: never. Fitted on training batches (docs/METHOD.md, per-mirror verdicts)."""
+    """Flip methods, once the NLL is on: one mirrored view is dropped (its rays leave the sampler, its pose
+    freezes) when its own squared error on the object exceeds this many times the inputs'; inf: never."""
     after_drop: Literal["rollback", "restart", "continue"] = "rollback"
-    """When the agreement gate drops mirrors: rollback (the field, its optimiser, BA's poses and the plane
-    go back to where they were when the mirrors joined, and train again without the dropped ones: what
-    they taught is gone; the run grows by the steps since the join), restart (the field trains on; once
-    every mirror is dropped a fresh field trains the inputs alone for the full --steps, so the run ends as
-    B/L would, bit for bit) or continue (the field trains on; what the dropped mirrors taught stays:
-    docs/results/agreement). Chosen on held-out orbit views (docs/METHOD.md, per-mirror verdicts): the
-    mug's configuration 1, whose mirrors all drop at step 241, gave 25.71 / 25.68 / 24.99 dB (B/L 25.68)
-    and rollback 1.24x B/L's wall time, restart about 1.5x."""
+    """When the gate drops mirrors: rollback (the field, optimiser, poses and plane go back to the join and
+    train again without them), restart (once all are dropped, a fresh field trains the inputs alone) or
+    continue (what they taught stays). docs/METHOD.md#defaults."""
     refine_plane: bool = True
     """Flip methods: the mirror plane is a parameter of training (training/flip.py: MirrorPlane); the
     mirrored cameras follow it and the mirrored rays' photometric loss moves it."""
     plane_lr: Annotated[float, Range(0.0, 1.0)] = 1e-2
-    """The plane's Adam learning rate (radians of tilt, scene units of shift per step), decaying 100x.
-    Chosen on held-out orbit views (3 indices past each test view, never scored by the protocol) of the
-    turned chair and the truck, configuration 1: 1e-3 / 3e-3 / 1e-2 gave 22.82 / 22.96 / 22.99 dB on the
-    turned chair (22.67 with the plane fixed), and 1e-2 with --ba-start 0.5, 23.11 dB."""
+    """The plane's Adam learning rate (radians of tilt, scene units of shift per step), decaying 100x."""
     plane_start: Annotated[float, Range(0.0, 1.0)] = 0.0
     """Fraction of the steps before the plane starts to move (its warm-up)."""
     ba: bool = True
     """Bundle-adjust the mirrored poses (Flip methods)."""
     ba_start: Annotated[float | None, Range(0.0, 1.0)] = None
-    """Fraction of the steps before BA moves the mirrored poses; None: 0.5 when the plane is refined, else
-    0 (BARF's BA from the first step). A plane refined from the start moves them all first: per-camera BA
-    from step 0 absorbs part of the plane's error camera by camera and stalls it. Chosen on held-out views
-    (turned chair, configuration 1, plane lr 3e-3: 22.96 dB with BA from the start, 23.05 from half-way,
-    23.06 with no BA); the plane's error against the true plane, printed beside as a diagnostic, went
-    0.46° -> 0.15° and -> 0.03°. The price: BA then runs at its already decayed lr, so a camera's own
-    3° error is barely corrected (3.00° -> 2.74°; 0.46° with the plane fixed)."""
+    """Fraction of the steps before BA moves the mirrored poses; None: 0.5 when the plane is refined (so BA
+    does not absorb the plane's error camera by camera), else 0 (BARF's). docs/METHOD.md#defaults."""
     refine: Literal["mirrored", "all"] = "mirrored"
     """Which poses BA refines (Flip methods): the mirrored ones (the paper's text), or all (the code's)."""
     uncertainty: bool = True
