@@ -9,6 +9,17 @@ import pytest
 import torch
 
 
+@pytest.fixture(scope="session", autouse=True)
+def render_cache(tmp_path_factory) -> Path:
+    """One render cache for the whole session, never the user's (~/.cache/flipviz): the built-in scenes
+    render once per session, and the subprocesses a test starts inherit it. A test of the cache itself
+    sets its own with monkeypatch."""
+    cache = tmp_path_factory.getbasetemp() / "cache"
+    with pytest.MonkeyPatch.context() as m:
+        m.setenv("FLIPVIZ_CACHE", str(cache))
+        yield cache
+
+
 @pytest.fixture
 def small_torch(tmp_path, monkeypatch):
     """A private render cache, a fixed seed and one torch thread (small model tests)."""

@@ -19,11 +19,6 @@ from flipviz.training.trainer import Trainer
 from flipviz.viz.run_curves import RunCurves
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 def test_the_disagreement_is_the_mirrored_over_the_input_error_on_the_object_only():
     """Rays of view 0 (an input) and view 1 (a mirror): object rays err 0.1 and 0.4 (summed over RGB);
     background rays (white target, transparent render) err far more and must not count."""

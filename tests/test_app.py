@@ -290,7 +290,7 @@ def test_mirror_consistency_scores_and_outputs(app):
             await c.send_camera((4.0, -4.0, 3.0))
             await c.wait_gui("Score mirrors")
             await c.click("Pause")
-            await asyncio.sleep(1.0)
+            await until(lambda: app.trainer.paused, "never paused")
             n = len(c.messages)
             await c.click("Score mirrors")
             m = await c.wait_for(
@@ -311,7 +311,7 @@ def test_mirror_consistency_scores_and_outputs(app):
                 img = visualize_output(out, which)
                 assert img.dtype == np.uint8 and img.shape == (cams[0].height, cams[0].width, 3)
             await c.click("Resume")
-            await asyncio.sleep(0.3)
+            await until(lambda: not app.trainer.paused, "never resumed")
 
     run(go())
     assert not app.trainer.paused
@@ -330,7 +330,7 @@ def test_two_tabs_and_snap_to_view(app):
             assert {"/mirror_plane", "/run/true_plane/quad", "/run/sphere/mesh"} <= a.visible_nodes()  # before the snap
             key = next(k for k in app.snap.views if k.startswith("test"))
             await a.set_value("View", key)
-            await asyncio.sleep(0.2)
+            await until(lambda: app.snap.select.value == key, "the view was never chosen")
             n = len(a.messages)
             await a.click("Snap to view")
             moved = lambda m: m["type"] == "SetCameraPositionMessage" and not m.get("initial")  # noqa: E731
@@ -423,7 +423,7 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             await c.send_camera(pos)
             await c.wait_gui("Load run B")
             await c.set_value("Or a folder", str(tmp_path))  # not a run: one line in the tab, A goes on
-            await asyncio.sleep(0.2)
+            await until(lambda: app.compare.path_txt.value == str(tmp_path), "the folder never arrived")
             await c.click("Load run B")
             t = time.monotonic()
             while "Cannot load run B" not in app.compare.status_md.content:
@@ -433,7 +433,7 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             assert "Cannot load run B" in app.compare.status_md.content
             assert app.compare.b is None and app.status == "running"
             await c.set_value("Or a folder", str(tmp_path / "b"))
-            await asyncio.sleep(0.2)
+            await until(lambda: app.compare.path_txt.value == str(tmp_path / "b"), "the folder never arrived")
             n = len(c.messages)
             await c.click("Load run B")
             t = time.monotonic()
@@ -476,7 +476,7 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             # snapped to a test view: both runs scored against its ground truth
             key = next(k for k in app.snap.views if k.startswith("test"))
             await c.set_value("View", key)
-            await asyncio.sleep(0.2)
+            await until(lambda: app.snap.select.value == key, "the view was never chosen")
             await c.click("Snap to view")
             cam = app.snap.views[key][2]
             wxyz, p = to_viser_pose(cam.c2w)  # as a browser does, this client reports the camera it was moved to
@@ -498,15 +498,16 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
                 assert time.monotonic() - t < 90, "no A/B scores of the snapped view"
                 await asyncio.sleep(0.2)
             await c.set_value("Show", "off")
-            await asyncio.sleep(0.3)
+            await until(lambda: app.compare.mode_dd.value == "off", "Compare never turned off")
             # the camera path: two keyframes from this browser's camera, rendered for A and B
-            for p in ((4.0, -4.0, 3.0), (-4.0, -4.0, 3.0)):
+            for k, p in enumerate(((4.0, -4.0, 3.0), (-4.0, -4.0, 3.0))):
                 await c.send_camera(p)
-                await asyncio.sleep(0.3)
+                cams = lambda: [h.camera.position for h in app.server.get_clients().values()]  # noqa: E731
+                await until(lambda p=p: any(np.allclose(q, p) for q in cams()), "the camera never arrived")
                 await c.click("Add keyframe")
-                await asyncio.sleep(0.3)
+                await until(lambda k=k: len(app.compare.keyframes) == k + 1, "no keyframe added")
             await c.set_value("Frames", 6)
-            await asyncio.sleep(0.2)
+            await until(lambda: app.compare.frames_num.value == 6, "the frame count never arrived")
             await c.click("Render video")
             t = time.monotonic()
             while app.compare.video_path is None:
@@ -616,7 +617,7 @@ def test_the_pixel_probe_reads_a_clicked_pixel_of_the_snapped_view(app):
             await c.click_scene((4.0, -4.0, 3.0), (-0.6, 0.6, -0.45))
             await c.wait_for(lambda m: "not at a view" in str(m), timeout=60)
             await c.set_value("View", key)
-            await asyncio.sleep(0.2)
+            await until(lambda: app.snap.select.value == key, "the view was never chosen")
             n = len(c.messages)
             await c.click("Snap to view")
             await c.wait_for(lambda m: m["type"] == "SetCameraPositionMessage" and not m.get("initial"), start=n)
@@ -708,7 +709,8 @@ def test_train_b_next_to_the_running_a(app):
             await c.wait_gui("Train B next to this run")
             await c.set_value("B method", "bl")
             await c.set_value("B setting", "authors")  # the official code's B/L: fog where no input looked
-            await asyncio.sleep(0.2)
+            chosen = lambda: (app.compare.method_dd.value, app.compare.setting_dd.value) == ("bl", "authors")  # noqa: E731
+            await until(chosen, "B's method and setting never arrived")
             await c.click("Train B next to this run")
             t = time.monotonic()
             while app.compare.b is None or app.compare.b.trainer.step < 3:

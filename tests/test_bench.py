@@ -57,8 +57,8 @@ TINY = [
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("cache")
+def cache(render_cache: Path) -> Path:
+    return render_cache  # (conftest: the session's)
 
 
 def _broken_scene(root: Path) -> None:
@@ -207,9 +207,8 @@ def test_bench_runs_use_the_train_defaults():
     assert {k: getattr(BenchConfig(), k) for k in shared} == {k: train[k] for k in shared}
 
 
-def test_flip_runs_of_a_configuration_share_one_estimated_plane(tmp_path: Path, cache: Path, monkeypatch) -> None:
+def test_flip_runs_of_a_configuration_share_one_estimated_plane(tmp_path: Path, cache: Path) -> None:
     """--mirror-plane auto (the default): Flip estimates the plane, Flip+U reads it (the same, no second fit)."""
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
     cfg = BenchConfig(
         scenes="chair",
         methods="flip,flip+u",
@@ -230,11 +229,10 @@ def test_flip_runs_of_a_configuration_share_one_estimated_plane(tmp_path: Path, 
     assert planes[0] == planes[1] == json.loads(shared.read_text())  # the estimate's own timing too: read, not redone
 
 
-def test_a_flip_run_that_drops_its_mirrors_takes_its_b_l_twins_result(tmp_path: Path, cache: Path, monkeypatch) -> None:
+def test_a_flip_run_that_drops_its_mirrors_takes_its_b_l_twins_result(tmp_path: Path, cache: Path) -> None:
     """With an unconfident plane (the chair's inputs at 24 px), Flip and Flip+U train B/L exactly; the
     bench takes B/L's finished result instead of training it twice: the same scores (checked against
     a Flip run that does train), the run's own plane report, and the test renders."""
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
     kw = dict(
         scenes="chair",
         configs="1",
@@ -285,9 +283,8 @@ def test_a_flip_run_that_drops_its_mirrors_takes_its_b_l_twins_result(tmp_path: 
     )
 
 
-def test_bench_on_ray(tmp_path: Path, cache: Path, monkeypatch) -> None:
+def test_bench_on_ray(tmp_path: Path, cache: Path) -> None:
     ray = pytest.importorskip("ray")
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(cache))
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         cfg = BenchConfig(

@@ -32,7 +32,6 @@ pytestmark = [
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    os.environ.setdefault("FLIPVIZ_CACHE", str(tmp_path_factory.mktemp("cache")))
     cfg = AppConfig.from_settings(
         scene="chair",
         res=48,

@@ -16,20 +16,10 @@ RES = 24
 
 
 @pytest.fixture(scope="module")
-def chair(tmp_path_factory):
-    import os
+def chair():
+    from flipviz.data.builtin import load_builtin
 
-    old = os.environ.get("FLIPVIZ_CACHE")
-    os.environ["FLIPVIZ_CACHE"] = str(tmp_path_factory.mktemp("cache"))
-    try:
-        from flipviz.data.builtin import load_builtin
-
-        yield load_builtin("chair", RES)
-    finally:
-        if old is None:
-            os.environ.pop("FLIPVIZ_CACHE", None)
-        else:
-            os.environ["FLIPVIZ_CACHE"] = old
+    return load_builtin("chair", RES)
 
 
 def _ts(scene, **kw):

@@ -23,22 +23,11 @@ pytestmark = pytest.mark.usefixtures("small_torch")
 
 
 @pytest.fixture(scope="module")
-def chair32(tmp_path_factory):
-    import os
+def chair32():
+    from flipviz.data.builtin import load_builtin
+    from flipviz.data.protocol import RING_INDICES
 
-    old = os.environ.get("FLIPVIZ_CACHE")
-    os.environ["FLIPVIZ_CACHE"] = str(tmp_path_factory.mktemp("cache"))
-    try:
-        from flipviz.data.builtin import load_builtin
-        from flipviz.data.protocol import RING_INDICES
-
-        scene = load_builtin("chair", res=32, indices=RING_INDICES)
-    finally:
-        if old is None:
-            os.environ.pop("FLIPVIZ_CACHE")
-        else:
-            os.environ["FLIPVIZ_CACHE"] = old
-    return scene
+    return load_builtin("chair", res=32, indices=RING_INDICES)
 
 
 def random_rays(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:

@@ -26,11 +26,6 @@ from flipviz.training.trainer import Trainer
 TRUE = Plane(np.zeros(3), np.array([1.0, 0.0, 0.0]))  # the chair's
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 def turned(plane: Plane, deg: float, offset: float) -> Plane:
     """`plane` turned by `deg` about the vertical and moved by `offset` along its normal."""
     n = Rotation.from_euler("z", deg, degrees=True).apply(plane.normal)

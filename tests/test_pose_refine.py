@@ -102,31 +102,22 @@ RES = 40
 
 
 @pytest.fixture(scope="module")
-def chair_views(tmp_path_factory):
+def chair_views():
     """The built-in chair seen from 16 close, wide-angle cameras on two rings (strong parallax,
     so that a rotation is not confused with a sideways translation), rendered at 40 px."""
-    import os
 
     from flipviz.data.builtin import render_view
     from flipviz.data.cameras import Camera, View
     from flipviz.geometry.poses import look_at
 
-    old = os.environ.get("FLIPVIZ_CACHE")
-    os.environ["FLIPVIZ_CACHE"] = str(tmp_path_factory.mktemp("cache"))
-    try:
-        focal = 0.5 * RES / np.tan(np.radians(32.5))
-        views = []
-        for k in range(16):
-            az, el = np.radians(22.5 * k), np.radians(15.0 if k % 2 else 45.0)
-            eye = 2.7 * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-            cam = Camera(look_at(eye, np.zeros(3)), RES, RES, focal, name=f"c{k}")
-            rgb, alpha = render_view("chair", cam)
-            views.append(View(cam, rgb, alpha, index=k))
-    finally:
-        if old is None:
-            os.environ.pop("FLIPVIZ_CACHE")
-        else:
-            os.environ["FLIPVIZ_CACHE"] = old
+    focal = 0.5 * RES / np.tan(np.radians(32.5))
+    views = []
+    for k in range(16):
+        az, el = np.radians(22.5 * k), np.radians(15.0 if k % 2 else 45.0)
+        eye = 2.7 * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        cam = Camera(look_at(eye, np.zeros(3)), RES, RES, focal, name=f"c{k}")
+        rgb, alpha = render_view("chair", cam)
+        views.append(View(cam, rgb, alpha, index=k))
     bbox = np.array([[-0.75, -0.65, -1.25], [0.75, 0.65, 1.25]])
     return bbox, views
 

@@ -46,8 +46,7 @@ def test_bad_config_is_rejected(bad):
         observed_positions(bad)
 
 
-def test_make_split_on_builtin(tmp_path, monkeypatch):
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path))
+def test_make_split_on_builtin():
     scene = load_builtin("mug", res=16)
     split = make_split(scene, 3)
     assert split.config == 3

@@ -32,11 +32,6 @@ TINY = dict(
 )
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 def flipviz(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "flipviz.cli", *args],

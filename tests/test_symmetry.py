@@ -33,8 +33,7 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @pytest.fixture
-def split(monkeypatch, tmp_path):
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path))
+def split():
     return lambda name, config=1: make_split(load_builtin(name, RES), config)
 
 

@@ -21,16 +21,8 @@ TINY = dict(
 )  # auto: tests/test_plane_estimate.py
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("FLIPVIZ_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
-
-
 @pytest.fixture(scope="module")
-def chair(tmp_path_factory):
-    import os
-
-    os.environ["FLIPVIZ_CACHE"] = str(tmp_path_factory.getbasetemp() / "cache")
+def chair():
     from flipviz.data.builtin import load_builtin
 
     return load_builtin("chair", RES)
