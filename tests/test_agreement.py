@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 import torch
+from recorder import Recorder
 
 from flipviz.data.builtin import load_builtin
 from flipviz.errors import UserError
 from flipviz.training.config import TrainConfig
-from flipviz.training.events import Observer, SetupEvent, StepEvent
 from flipviz.training.flip import Action, Agreement
 from flipviz.training.setup import build_run
 from flipviz.training.trainer import Trainer
@@ -206,12 +206,12 @@ def test_a_rollback_of_every_mirror_trains_the_inputs_from_the_join_and_resumes(
         out=tmp_path / "flip",
     )
     tr = Trainer(cfg, chair16)
-    steps = Steps()
+    steps = Recorder()
     tr.add_observer(steps)
     m = tr.run()
     at = m["plane"]["dropped_at"]
     assert at is not None and m["plane"]["rewound_steps"] == at and m["steps"] == at + 60, m["plane"]
-    assert steps.events[-1].total_steps == at + 60 and m["plane"]["kept_mirrors"] == 0
+    assert steps.steps[-1].total_steps == at + 60 and m["plane"]["kept_mirrors"] == 0
     assert not tr.flip.poses().requires_grad  # nothing mirrored trains: the poses cost no gradient any more
     resumed = Trainer(cfg.with_settings(resume=str(tmp_path / "flip")), chair16)
     assert resumed.field_start == at and resumed.flip.rewound == at and resumed.model.with_beta
@@ -246,12 +246,12 @@ def test_a_run_whose_mirrors_are_dropped_restarts_and_ends_exactly_as_bl(tmp_pat
         ),
         chair16,
     )
-    steps = Steps()
+    steps = Recorder()
     flip.add_observer(steps)
     m = flip.run()
     at = m["plane"]["dropped_at"]
     assert at is not None and m["plane"]["restarted_at"] == at and m["steps"] == at + 60, m["plane"]
-    assert steps.events[-1].step == steps.events[-1].total_steps == at + 60
+    assert steps.steps[-1].step == steps.steps[-1].total_steps == at + 60
     bl = Trainer(TrainConfig.from_settings(method="bl", out=tmp_path / "bl", **base), chair16)
     bl.run()
     ours, theirs = flip.model.state_dict(), bl.model.state_dict()
@@ -271,19 +271,7 @@ def test_a_disagreement_limit_below_one_or_nan_is_one_line(value):
         TrainConfig.from_settings(disagreement_limit=value).validate()
 
 
-class Steps(Observer):
-    def __init__(self) -> None:
-        self.events: list[StepEvent] = []
-        self.setup: SetupEvent | None = None
-
-    def on_setup(self, event: SetupEvent) -> None:
-        self.setup = event
-
-    def on_step(self, event: StepEvent) -> None:
-        self.events.append(event)
-
-
-def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
+def gated_run(tmp_path, scene: str) -> tuple[dict, Recorder]:
     """Flip+U with the plane x = 0 (the chair's true plane; it maps the mug's handle to where it is not),
     configuration 4, 32 px, at the limit measured for mirrors that train from step 0 (2.0; the default,
     3.25, is for mirrors that join after the plane is estimated from the run's field)."""
@@ -304,7 +292,7 @@ def gated_run(tmp_path, scene: str) -> tuple[dict, Steps]:
         after_drop="restart",
     )
     tr = Trainer(cfg)
-    steps = Steps()
+    steps = Recorder()
     tr.add_observer(steps)
     return tr.run(), steps
 
@@ -324,16 +312,16 @@ def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_pat
     ]  # after the NLL starts (step 60)
     assert mug["plane"]["restarted_at"] == at and mug["steps"] == at + 300  # a fresh field on the inputs (--after-drop)
     assert mug["plane"]["disagreement"] > 2.0
-    after = [e for e in mug_steps.events if e.step > at]
+    after = [e for e in mug_steps.steps if e.step > at]
     assert after and all(e.scalars["mirrors_trained"] == 0.0 for e in after)
     assert all(
         np.array_equal(e.mirror_c2w, after[0].mirror_c2w) for e in after
     )  # nothing mirrored moves after the drop
     curves = RunCurves.for_run(mug_steps.setup)
-    for e in mug_steps.events:
+    for e in mug_steps.steps:
         curves.add_step(e)
     x, ratio, limit, _, *each = curves.agreement_data()
-    assert len(each) == len(mug_steps.events[-1].mirror_ratio)  # one ratio per mirror beside the pooled one
-    assert curves.dropped_at == next(e.step for e in mug_steps.events if e.scalars["mirrors_trained"] == 0.0)
+    assert len(each) == len(mug_steps.steps[-1].mirror_ratio)  # one ratio per mirror beside the pooled one
+    assert curves.dropped_at == next(e.step for e in mug_steps.steps if e.scalars["mirrors_trained"] == 0.0)
     assert curves.restarted  # the events' total grew by the steps before the drop
     assert np.all(np.isfinite(ratio)) and np.all(limit == 2.0) and ratio.max() > 2.0 and len(x) == len(ratio)

@@ -15,34 +15,16 @@ import numpy as np
 import psutil
 import pytest
 import rerun as rr
+from recorder import Recorder
 from rerun.chunk import RrdReader
 
 from flipviz.training.config import TrainConfig
-from flipviz.training.events import ImagesEvent, Observer, SetupEvent, StepEvent
 from flipviz.training.trainer import Trainer
 from flipviz.viz.rerun.blueprint import entity_name
 from flipviz.viz.rerun.observer import camera_paths, has_footer, make_rerun_observer
 
 STEPS, LOG_EVERY, IMAGES_EVERY = 10, 2, 5
 REPO = Path(__file__).resolve().parents[1]
-
-
-class Keep(Observer):
-    """Keeps the events the trainer emitted, to compare with what the recording holds."""
-
-    def __init__(self) -> None:
-        self.setup: SetupEvent | None = None
-        self.steps: list[StepEvent] = []
-        self.images: list[ImagesEvent] = []
-
-    def on_setup(self, e: SetupEvent) -> None:
-        self.setup = e
-
-    def on_step(self, e: StepEvent) -> None:
-        self.steps.append(e)
-
-    def on_images(self, e: ImagesEvent) -> None:
-        self.images.append(e)
 
 
 def read_rrd(path: Path) -> dict[str, list]:
@@ -92,7 +74,7 @@ def run(tmp_path_factory):
     )
     trainer = Trainer(cfg)
     obs = make_rerun_observer(cfg, trainer.run_dir, bake=trainer.point_cloud, splats_every=1)
-    keep = Keep()
+    keep = Recorder()
     trainer.add_observer(obs)
     trainer.add_observer(keep)
     try:

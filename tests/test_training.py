@@ -8,6 +8,7 @@ import threading
 import numpy as np
 import pytest
 import torch
+from recorder import Recorder
 
 from flipviz.training import evaluate as ev
 from flipviz.training.checkpoint import load_checkpoint
@@ -26,23 +27,6 @@ def chair():
     from flipviz.data.builtin import load_builtin
 
     return load_builtin("chair", RES)
-
-
-class Recorder(Observer):
-    def __init__(self):
-        self.setup, self.steps, self.images, self.end = None, [], [], None
-
-    def on_setup(self, e):
-        self.setup = e
-
-    def on_step(self, e):
-        self.steps.append(e)
-
-    def on_images(self, e):
-        self.images.append(e)
-
-    def on_end(self, e):
-        self.end = e
 
 
 class Broken(Observer):
