@@ -4,6 +4,7 @@
 
 1. app.png: the chair training (Flip+U), your view rendered at the canvas size;
 2. app_snapped.png: snapped to an unobserved test view, ground truth and render blended half-half;
+   app_restart.png: Restart -> mug asks first (which run it replaces, where its checkpoint stays);
 3. app_mirror.png: the mug with --unconfident-plane drop (its doubted plane's mirrors are not trained:
    "Show the mirrors anyway" draws them), its mirrored frustums coloured by their scores and showing
    where the flipped images disagree with the model;
@@ -49,8 +50,9 @@ class Args:
     steps_before: int = 700
     """Training steps before the first screenshot."""
     shots: str = "orbit,capture,compare,plane,fog,probe,agreement"
-    """orbit: app.png, app_snapped.png, app_mirror.png; capture: app_capture.png; compare: app_compare.png;
-    plane: app_plane.png; fog: app_fog.png; probe: app_probe.png, app_curves.png; agreement: app_agreement.png."""
+    """orbit: app.png, app_snapped.png, app_restart.png, app_mirror.png; capture: app_capture.png; compare:
+    app_compare.png; plane: app_plane.png; fog: app_fog.png; probe: app_probe.png, app_curves.png; agreement:
+    app_agreement.png."""
 
 
 def main(args: Args) -> None:
@@ -284,6 +286,10 @@ def orbit_shots(args: Args) -> None:
         (args.out / "app_snapped.png").write_bytes(screenshot_png(d))
         choose(d, "Scene", "mug")
         button(d, "Restart training")
+        wait_until(lambda: "Replace this run" in d.page_source, 30, what="the question before a restart")
+        time.sleep(1.0)  # (the modal's fade-in)
+        (args.out / "app_restart.png").write_bytes(screenshot_png(d))
+        button(d, "Replace the run")
         wait_until(
             lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before,
             600,

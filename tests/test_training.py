@@ -215,6 +215,17 @@ def test_a_stop_ends_an_evaluation_between_chunks_of_rays_and_keeps_the_checkpoi
     m = tr.run()
     assert m["status"] == "stopped" and "stopped during the final evaluation" in m["message"], m
     assert "psnr" not in m and load_checkpoint(tmp_path / "run")["step"] == 20
+    early = Trainer(cfg.with_settings(out=tmp_path / "early"), scene=chair)  # --eval-on-stop is on (the default)
+
+    class Restart(Observer):  # a restart in the app: stop() mid-training waits for no evaluation
+        def on_step(self, e):
+            if e.step == 10:
+                early.stop()
+
+    early.add_observer(Restart())
+    m = early.run()
+    assert m["status"] == "stopped" and "psnr" not in m and load_checkpoint(tmp_path / "early")["step"] == 10
+    assert "evaluation" not in m["message"], m["message"]  # none was begun, so none was interrupted
 
 
 class PauseAt(Observer):

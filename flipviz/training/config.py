@@ -250,7 +250,8 @@ class OutputConfig:
     checkpoint_every: Annotated[int, Range(0, 10_000_000)] = 500
     """Steps between checkpoints (atomic; a non-finite state is never written); 0: only at the end."""
     eval_on_stop: bool = True
-    """Evaluate the test views also when a run is stopped early."""
+    """Evaluate the test views also when a run is stopped early by Ctrl-C (a stop() from the app, a restart,
+    skips it: nothing waits for an evaluation)."""
     rrd: Path | None = None
     """Rerun recording path (default <run folder>/recording.rrd)."""
     no_rrd: bool = False

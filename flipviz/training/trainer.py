@@ -318,7 +318,8 @@ class Trainer:
         metrics: dict = {}
         try:
             if status in ("finished", "stopped") and self.save_checkpoint() is not None:
-                if status == "finished" or cfg.output.eval_on_stop:
+                asked = self._stop.is_set()  # stop(): a restart or the app closing waits for no evaluation
+                if status == "finished" or (cfg.output.eval_on_stop and not asked):
                     renders = self.render_tests()  # rendered once, for the scores and the last images
                     metrics = self.evaluate(renders)
                     self._emit("on_images", self._images_event(renders))
