@@ -21,7 +21,7 @@
    and its marker; app_curves.png: the Mirror tab's charts over the steps (each mirrored camera's
    rotation error, the refined plane's error).
 9. app_agreement.png: the mug at the defaults (its doubted plane tried): the Mirror tab's agreement
-   chart after the gate dropped the mirrors and the field restarted on the inputs.
+   chart after the gate dropped a mirror and the field went back to the join.
 """
 
 from __future__ import annotations
@@ -195,15 +195,14 @@ def agreement_shot(args: Args) -> None:
     )
     app = App(cfg).start()
     try:
-        wait_until(
-            lambda: app.trainer is not None and app.trainer.field_start > 0 and app.step > app.trainer.field_start + 50,
-            900,
-            what="the gate's drop and restart",
-        )
+        wait_until(lambda: any(app.scene.dropped), 900, what="the gate's first drop")
+        at = app.step
+        wait_until(lambda: app.step > at + 50, 300, what="training on after the drop")
         with chromium() as d:
             open_page(d, app.port, settle_s=5.0)
             tab(d, "Mirror")
-            wait_until(lambda: "Mirrors dropped" in app.mirror.curves.verdict.content, 60, what="the gate's verdict")
+            verdict = lambda: "Mirrored views dropped" in app.mirror.curves.verdict.content  # noqa: E731
+            wait_until(verdict, 60, what="the gate's verdict")
             chart = d.find_element("xpath", "//*[starts-with(normalize-space(), 'Mirrors vs inputs')]")
             d.execute_script("arguments[0].scrollIntoView({block: 'center'});", chart)  # the ratio, the limit, the drop
             time.sleep(4.0)

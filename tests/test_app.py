@@ -1261,6 +1261,45 @@ def test_thinned_curves_keep_every_test_evaluation_and_the_last_step():
     assert np.isnan(train[x == 125]).all() and np.isfinite(train[x == 250]).all()
 
 
+def test_the_curves_go_on_after_a_rollback_instead_of_going_back():
+    """Issue 45 (seen in the README's screenshot): after the gate's drop the run goes back to the join and
+    trains those steps again; the charts' x column went back with it, and uPlot drew nothing. x counts the
+    steps trained: the curves go on from the drop, which sits at its own x."""
+    from flipviz.training.events import StepEvent
+    from flipviz.viz.run_curves import RunCurves
+
+    curves = RunCurves(planned_steps=600, limit=3.25, mirror_limit=6.0)
+    kept, one_gone = (None, None), (300, None)
+    for step in range(2, 301, 2):  # mirror 0 leaves at step 300; the run goes back to the join at 150
+        curves.add_step(
+            StepEvent(
+                step,
+                600,
+                1.0,
+                {"psnr": 20.0, "disagreement": 2.0},
+                mirror_ratio=np.array([7.0, 2.0]),
+                mirror_dropped_at=kept,
+            )
+        )
+    for step in range(152, 601, 2):  # the 150 steps since the join, trained again
+        curves.add_step(
+            StepEvent(
+                step,
+                750,
+                1.0,
+                {"psnr": 21.0, "disagreement": 1.5},
+                mirror_ratio=np.array([7.0, 1.5]),
+                mirror_dropped_at=one_gone,
+            )
+        )
+    curves.add_test(600, 25.0)
+    for data in (curves.psnr_data(), curves.agreement_data()):
+        assert np.all(np.diff(data[0]) > 0) and data[0][-1] == 750
+    x, _, _, _, first, second = curves.agreement_data()
+    assert curves.drop_x == {0: 300.0} and np.isnan(first[x > 300]).all() and np.isfinite(second).all()
+    assert curves.psnr_data()[2][-1] == 25.0  # the last evaluation at the last x
+
+
 def test_beta2_views_colour_the_object_and_leave_empty_space_as_rendered():
     """Issue 21: a beta^2 view composites the colour scale over the render by opacity, so a white
     background stays white instead of a wash of the scale's floor colour."""

@@ -9,8 +9,10 @@
   own (up to its drop), against the limit above which they are dropped, and the step each one was.
 
 The trainer's thread adds (`add_step`, `add_test`); the app's UI tick reads thinned copies as uPlot
-data: one x column (the steps) and one column per series, NaN where a series has no value (uPlot
-draws its points and joins them with `spanGaps`).
+data: one x column and one column per series, NaN where a series has no value (uPlot draws its points
+and joins them with `spanGaps`). The x column counts the steps trained: after a drop the run goes back
+to the join (--after-drop rollback) or to step 0 (restart) and trains the steps again, and uPlot draws
+nothing of an x column that goes back; the curves go on from where the drop was instead.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ class RunCurves:
     after_drop: str = "rollback"  # what the run does after a drop (--after-drop)
     planned_steps: int = 0  # the run's steps at setup
     restarted: bool = False  # the run grew longer after a drop (--after-drop restart or rollback)
+    again: int = 0  # the steps trained again after drops (the run's growth): x = step + again
+    drop_x: dict[int, float] = field(default_factory=dict)  # mirror -> the x of its drop
 
     @classmethod
     def for_run(cls, setup: SetupEvent) -> RunCurves:
@@ -77,7 +81,8 @@ class RunCurves:
         return self.true_plane is not None
 
     def add_step(self, ev: StepEvent) -> None:
-        s = float(ev.step)
+        before, self.again = self.again, max(0, ev.total_steps - self.planned_steps) if self.planned_steps else 0
+        s = float(ev.step + self.again)  # the steps trained so far (see the module doc)
         p = ev.scalars.get("psnr")
         self.steps.append(s)
         self.psnr.append(float(p) if p is not None and np.isfinite(p) else float("nan"))
@@ -88,6 +93,8 @@ class RunCurves:
             self.mirror_deg.append(np.asarray(deg, np.float64))
         if ev.mirror_dropped_at is not None:
             for i, at in enumerate(ev.mirror_dropped_at):
+                if at is not None and i not in self.drop_x:
+                    self.drop_x[i] = float(at + before)  # (its step, in the branch it was dropped in)
                 if at is not None and i not in self.drop_ratio and self.mirror_ratio:
                     self.drop_ratio[i] = float(self.mirror_ratio[-1][i])  # its last measure before it left
             self.mirror_dropped_at = tuple(ev.mirror_dropped_at)
@@ -96,7 +103,7 @@ class RunCurves:
             self.agree_steps.append(s)
             self.disagreement.append(float(d))
             if ev.mirror_ratio is not None and len(ev.mirror_ratio) == len(self.mirror_dropped_at):
-                gone = np.array([at is not None and at < s for at in self.mirror_dropped_at])
+                gone = np.array([i in self.drop_x and self.drop_x[i] < s for i in range(len(self.mirror_dropped_at))])
                 self.mirror_ratio.append(np.where(gone, np.nan, np.asarray(ev.mirror_ratio, np.float64)))
         if ev.scalars.get("mirrors_trained") == 0.0 and self.dropped_at is None:
             self.dropped_at = int(ev.step)
@@ -116,7 +123,7 @@ class RunCurves:
 
     def add_test(self, step: int, psnr: float) -> None:
         if np.isfinite(psnr):
-            self.test[float(step)] = float(psnr)
+            self.test[float(step + self.again)] = float(psnr)
 
     # ---- uPlot data (x first, then one column per series) -----------------------------------
     def psnr_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -103,7 +103,7 @@ class TrainPanel:
         self.plot = gui.add_uplot(
             (np.array([0.0, 1.0]), np.array([0.0, 0.0]), np.array([np.nan, np.nan])),
             (
-                {"label": "step"},
+                {"label": "steps trained"},
                 {"label": "train batch", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
                 {
                     "label": "unobserved views",

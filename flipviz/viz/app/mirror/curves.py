@@ -65,7 +65,7 @@ class MirrorCurves:
         with self.folder:
             self.poses = self.server.gui.add_uplot(
                 (np.zeros(1), *np.zeros((len(names), 1))),
-                ({"label": "step"}, *({"label": n, "stroke": c, "width": 1.5} for n, c in zip(names, colors))),
+                ({"label": "steps trained"}, *({"label": n, "stroke": c, "width": 1.5} for n, c in zip(names, colors))),
                 title=POSE_TITLES[False],
                 scales={"x": {"time": False}},
                 aspect=1.6,
@@ -76,7 +76,7 @@ class MirrorCurves:
                 self.plane = self.server.gui.add_uplot(
                     (np.zeros(1), np.zeros(1), np.zeros(1)),
                     (
-                        {"label": "step"},
+                        {"label": "steps trained"},
                         {"label": "angle (deg)", "stroke": palette.hex_color(palette.MIRROR_PLANE), "width": 2},
                         {
                             "label": "offset (units)",
@@ -94,7 +94,7 @@ class MirrorCurves:
             self.agreement = self.server.gui.add_uplot(
                 (np.zeros(1), *np.zeros((3 + len(names), 1))),
                 (
-                    {"label": "step"},
+                    {"label": "steps trained"},
                     {"label": "all mirrors", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 3},
                     {"label": "limit (all)", "stroke": "#888888", "width": 1, "dash": [6, 4]},
                     {"label": "limit (each)", "stroke": "#bbbbbb", "width": 1, "dash": [2, 4]},
