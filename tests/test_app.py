@@ -586,9 +586,9 @@ def test_the_curves_plot_the_unobserved_views_the_mirrors_and_the_plane(app):
 
     psnr, poses, plane = run(go())
     n_mirrors = sum(ci.kind == "mirror_init" for ci in app.setup.cameras)
-    assert [s["label"] for s in psnr["props"]["series"]] == ["step", "train batch", "unobserved views"]
+    assert [s["label"] for s in psnr["props"]["series"]] == ["steps trained", "train batch", "unobserved views"]
     assert len(poses["props"]["series"]) == 1 + n_mirrors
-    assert [s["label"] for s in plane["props"]["series"]] == ["step", "angle (deg)", "offset (units)"]
+    assert [s["label"] for s in plane["props"]["series"]] == ["steps trained", "angle (deg)", "offset (units)"]
     deadline = time.monotonic() + 120
     while not (np.isfinite(app.train.plot.data[2]).sum() >= 1 and app.mirror.curves.plane.visible):
         assert time.monotonic() < deadline, "no test evaluation or plane curve was plotted"
