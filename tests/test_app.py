@@ -425,10 +425,11 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             await c.set_value("Or a folder", str(tmp_path))  # not a run: one line in the tab, A goes on
             await until(lambda: app.compare.path_txt.value == str(tmp_path), "the folder never arrived")
             await c.click("Load run B")
-            t = time.monotonic()
-            while "Cannot load run B" not in app.compare.status_md.content:
-                assert time.monotonic() - t < 60, app.compare.status_md.content
-                await asyncio.sleep(0.1)
+            await until(
+                lambda: "Cannot load run B" in app.compare.status_md.content,
+                lambda: app.compare.status_md.content,
+                timeout=60,
+            )
             await asyncio.sleep(2.5)  # the line stays past the status loop's next refresh (every second)
             assert "Cannot load run B" in app.compare.status_md.content
             assert app.compare.b is None and app.status == "running"
@@ -436,10 +437,7 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             await until(lambda: app.compare.path_txt.value == str(tmp_path / "b"), "the folder never arrived")
             n = len(c.messages)
             await c.click("Load run B")
-            t = time.monotonic()
-            while app.compare.b is None:
-                assert time.monotonic() - t < 60, app.compare.status_md.content
-                await asyncio.sleep(0.1)
+            await until(lambda: app.compare.b is not None, lambda: app.compare.status_md.content, timeout=60)
             bg = lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"]  # noqa: E731
             await asyncio.sleep(1.0)  # B is on: the views are asked again (a render of A alone may still arrive)
             n = len(c.messages)
@@ -493,10 +491,7 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
                 up_direction=(0.0, 0.0, 1.0),
             )
             name = key
-            t = time.monotonic()
-            while name not in app.compare.scores:
-                assert time.monotonic() - t < 90, "no A/B scores of the snapped view"
-                await asyncio.sleep(0.2)
+            await until(lambda: name in app.compare.scores, "no A/B scores of the snapped view", timeout=90)
             await c.set_value("Show", "off")
             await until(lambda: app.compare.mode_dd.value == "off", "Compare never turned off")
             # the camera path: two keyframes from this browser's camera, rendered for A and B
@@ -509,14 +504,13 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             await c.set_value("Frames", 6)
             await until(lambda: app.compare.frames_num.value == 6, "the frame count never arrived")
             await c.click("Render video")
-            t = time.monotonic()
-            while app.compare.video_path is None:
-                assert time.monotonic() - t < 60, app.compare.video_md.content
-                await asyncio.sleep(0.2)
+            await until(lambda: app.compare.video_path is not None, lambda: app.compare.video_md.content, timeout=60)
             # this client sits at keyframe 1 (it was added there): that frustum is hidden, keyframe 0's drawn
-            while [h.visible for h in app.compare._key_handles] != [True, False]:
-                assert time.monotonic() - t < 60, [h.visible for h in app.compare._key_handles]
-                await asyncio.sleep(0.2)
+            await until(
+                lambda: [h.visible for h in app.compare._key_handles] == [True, False],
+                lambda: [h.visible for h in app.compare._key_handles],
+                timeout=60,
+            )
 
     from flipviz.viz import palette
 
@@ -712,10 +706,11 @@ def test_train_b_next_to_the_running_a(app):
             chosen = lambda: (app.compare.method_dd.value, app.compare.setting_dd.value) == ("bl", "authors")  # noqa: E731
             await until(chosen, "B's method and setting never arrived")
             await c.click("Train B next to this run")
-            t = time.monotonic()
-            while app.compare.b is None or app.compare.b.trainer.step < 3:
-                assert time.monotonic() - t < 90, app.compare.status_md.content
-                await asyncio.sleep(0.2)
+            await until(
+                lambda: app.compare.b is not None and app.compare.b.trainer.step >= 3,
+                lambda: app.compare.status_md.content,
+                timeout=90,
+            )
 
     try:
         run(go())
@@ -822,10 +817,11 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
                 await c.wait_gui("Max resolution")  # its view, though --view-width 64 is below the slider's 128
                 assert a.mirror.consistency.anyway_btn.visible and not a.mirror.preview.frame.visible
                 await c.click("Show the mirrors anyway (not trained on)")
-                t = time.monotonic()
-                while not any("not trained on" in k for k in a.mirror.consistency.scores):
-                    assert time.monotonic() - t < 90, a.mirror.consistency.table.content
-                    await asyncio.sleep(0.2)
+                await until(
+                    lambda: any("not trained on" in k for k in a.mirror.consistency.scores),
+                    lambda: a.mirror.consistency.table.content,
+                    timeout=90,
+                )
 
         run(go())
         scores = next(v for k, v in a.mirror.consistency.scores.items() if "not trained on" in k)
@@ -959,15 +955,14 @@ def test_restart_with_another_method(app):
             await c.wait_for(lambda m: m["type"] == "GuiModalMessage", start=n)
             await c.wait_for(lambda m: m.get("props", {}).get("label") == "Replace the run", start=n)
             await c.click("Replace the run")  # (the newest modal's button: c.gui keeps the latest)
-            t = time.monotonic()
-            while not (app.setup is not None and app.setup.method == "bl" and app.step > 0):
-                assert time.monotonic() - t < 90, f"no restart: {app.status} {app.message}"
-                await asyncio.sleep(0.2)
+            await until(
+                lambda: app.setup is not None and app.setup.method == "bl" and app.step > 0,
+                lambda: f"no restart: {app.status} {app.message}",
+                timeout=90,
+            )
             # the replaced run's checkpoint is kept (within the budget): one click compares with it
             await c.click("Compare with the previous run")
-            while app.compare.b is None:
-                assert time.monotonic() - t < 60, app.compare.status_md.content
-                await asyncio.sleep(0.2)
+            await until(lambda: app.compare.b is not None, lambda: app.compare.status_md.content, timeout=60)
             return question
 
     old, first_dir = app.setup, app.session.run_dir()
@@ -1340,10 +1335,11 @@ def test_the_live_preview_is_drawn_as_gaussian_splats_one_per_cell(app):
                 app.trainer.render, app.setup.cameras[0].camera, ("rgb",)
             )  # the step in flight ends
             app.preview.request()  # a bake of the paused field, then none (the step does not change)
-            t = time.monotonic()
-            while (app.preview.baked or {}).get("step") != app.step:
-                assert time.monotonic() - t < 60, "no bake of the paused field"
-                await asyncio.sleep(0.1)
+            await until(
+                lambda: (app.preview.baked or {}).get("step") == app.step,
+                "no bake of the paused field",
+                timeout=60,
+            )
             await c.wait_gui("Preview drawn as")
             n = len(c.messages)
             await c.set_value("Preview drawn as", "points")  # the same bake, drawn as squares

@@ -55,11 +55,12 @@ def wxyz_look_at(position: np.ndarray, target: np.ndarray) -> tuple[float, ...]:
     return tuple(float(v) for v in to_viser_pose(look_at(position, target))[0])
 
 
-async def until(cond: Callable[[], bool], what: str, timeout: float = 60.0) -> None:
-    """Wait (on the event loop, the client's reader going on) until the app's side of a change holds."""
+async def until(cond: Callable[[], object], what: str | Callable[[], object], timeout: float = 60.0) -> None:
+    """Wait (on the event loop, the client's reader going on) until the app's side of a change holds;
+    `what` names it (a callable: what the app shows when the wait fails)."""
     t = time.monotonic()
     while not cond():
-        assert time.monotonic() - t < timeout, what
+        assert time.monotonic() - t < timeout, what() if callable(what) else what
         await asyncio.sleep(0.05)
 
 
