@@ -164,7 +164,7 @@ def panel_text(d) -> str:
 
 
 def test_1_load_shows_training_and_a_rendered_view(app, browser):
-    wait_until(lambda: "status: running" in panel_text(browser) or "step" in panel_text(browser), 30, what="status")
+    wait_until(lambda: "status: running" in panel_text(browser), 60, what="the running status in the panel")
     assert "chair | flip+u | configuration 1" in panel_text(browser)
     img = wait_view(browser, "1_load", lambda i: colourful(i) > 0.01)
     assert img.std() > 10  # not one flat colour
@@ -236,8 +236,7 @@ def test_3_snap_to_a_test_view_hides_the_frustums_near_it(app, browser):
     wait_until(lambda: app.scene.hidden, 20, what="frustums near the view hidden")
     cid = next(iter(app.views.clients))
     wait_until(lambda: app.views.clients[cid].snapped is not None, 20, what="the snapped view")
-    img = wait_view(browser, "3_snapped", lambda i: i.std() > 10 and drawn(i) > 0.02)
-    assert img.std() > 10
+    wait_view(browser, "3_snapped", lambda i: i.std() > 10 and drawn(i) > 0.02)  # (a timeout fails the test)
     wait_until(lambda: "PSNR" in panel_text(browser), 60, what="the snapped view's score in the panel")
 
 
@@ -500,7 +499,7 @@ def test_7_restart_with_bl(app, browser):
     wait_until(lambda: "chair | bl | configuration 1" in panel_text(browser), 30, what="the status of B/L")
     assert not app.scene.mirror_handles  # B/L trains on no mirror: none drawn
     tab(browser, "Mirror")
-    assert "no** mirrored view" in app.mirror.plane_text.content or "no mirrored view" in panel_text(browser)
+    wait_until(lambda: "trains on no mirrored view" in panel_text(browser), 30, what="the page saying so")
     shot(browser, "7_bl")
 
 
@@ -512,8 +511,7 @@ def test_8_switch_scene(app, browser):
     button(browser, "Replace the run")  # issue 45: asked first
     wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step > 5, 180, what="the mug run")
     wait_until(lambda: "mug | flip+u" in panel_text(browser), 30, what="the mug's status")
-    img = wait_view(browser, "8_mug", lambda i: i.std() > 10)
-    assert img.std() > 10
+    wait_view(browser, "8_mug", lambda i: i.std() > 10)  # the mug's view drawn (a timeout fails the test)
 
 
 def test_9_a_paused_app_goes_quiet_in_the_browser(app, browser):
