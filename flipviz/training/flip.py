@@ -567,6 +567,7 @@ class Flip:
         for key, obj in parts.items():
             if obj is not None and state.get(key) is not None:
                 obj.load_state_dict(state[key])
+        self._still = None  # the poses moved (a rollback, a checkpoint): poses() computes them again
 
     def state_dict(self) -> dict:
         return {
@@ -619,7 +620,7 @@ class Flip:
             elif any(at is not None for at in each):  # an old checkpoint: they stopped where its poses are
                 with torch.no_grad():
                     self.frozen = self._moving_poses()[self.mirror_ids].detach()
-            self.mirror_dropped_at, self._still = list(each), None
+            self.mirror_dropped_at = list(each)
             rewound = agree.get("rewound", 0)
             if not is_count(rewound):
                 raise ValueError(f"rewound {rewound!r} is not a step count")
