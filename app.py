@@ -7,7 +7,7 @@ gracefully.
 
 import sys
 
-from flipviz.cli import main
+from flipviz.cli import run
 
 if __name__ == "__main__":
-    sys.exit(main(["app", *sys.argv[1:]]))
+    run(["app", *sys.argv[1:]])

@@ -13,20 +13,23 @@ flipviz score RUN --eval-views orbit --eval-tune-steps 100   (scored again: the 
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import io
 import itertools
+import os
 import signal
 import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Annotated, Literal, NoReturn, Union
 
 import tyro
 
 from flipviz.errors import Interrupted, UserError
+from flipviz.files import STOP_SIGNALS
 from flipviz.options import check_ranges
 from flipviz.training.config import PRESETS, EvalConfig, EvalEvery, EvalSteps, Res, TrainConfig, preset_config
 
@@ -197,6 +200,23 @@ def main(argv: list[str] | None = None) -> int:
     return guarded(lambda: _dispatch(cmd))
 
 
+def run(argv: list[str] | None = None) -> NoReturn:
+    """The process's entry (`flipviz`, `python app.py`): exit with main's code.
+
+    Everything is saved once main returns, so a Ctrl-C, SIGTERM or SIGHUP that arrives while Python
+    shuts down (joining threads, tearing down torch) ends the exit at once with that same code. It no
+    longer prints a traceback or turns the exit code into "killed by SIGINT"."""
+    try:
+        code = main(argv)
+    except KeyboardInterrupt:  # a Ctrl-C between main's own handling and here
+        code = 128 + signal.SIGINT
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, lambda signum, frame: os._exit(code))
+    atexit.register(lambda: [signal.signal(sig, signal.SIG_IGN) for sig in STOP_SIGNALS])  # Python's teardown resets
+    # the handlers it installed to the default (killed by the signal); an ignored signal stays ignored
+    sys.exit(code)
+
+
 def parse_command(argv: list[str] | None) -> object:
     """The subcommand's config from `argv`, in one parse. A `--preset` (train, app, bench) gives the
     defaults it parses with (its whole config: `preset_config`), so every option you pass wins."""
@@ -307,9 +327,8 @@ def guarded(fn: Callable[[], int]) -> int:
 
     Only `UserError` is bad input; any other exception is a bug and keeps its traceback.
     """
-    stops = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     main = threading.current_thread() is threading.main_thread()
-    before = {sig: signal.signal(sig, _on_signal) for sig in stops} if main else {}
+    before = {sig: signal.signal(sig, _on_signal) for sig in STOP_SIGNALS} if main else {}
     _received.clear()
     try:
         code = fn()
@@ -330,4 +349,4 @@ def guarded(fn: Callable[[], int]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

@@ -7,6 +7,8 @@ import json
 import os
 import re
 import shutil
+import signal
+import threading
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -47,6 +49,7 @@ def cannot_write(path: Path | str, what: str) -> Iterator[None]:
         raise UserError(f"cannot write {what} {path}: {e.strerror or e}{free}") from None
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # Ctrl-C, kill, a closed terminal: stop gracefully
 LOW_SPACE = 64e6  # bytes: a write error with less free than this names the free space
 
 
@@ -184,15 +187,11 @@ def signals_deferred() -> Iterator[None]:
     cut in half by an interrupt: their handlers are swapped for ones that only take note, and the
     first signal noted is handled once the block is done. Main thread only (elsewhere a no-op:
     Python delivers signals to the main thread)."""
-    import signal
-    import threading
-
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     noted: list[int] = []
-    sigs = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-    old = {s: signal.signal(s, lambda signum, frame: noted.append(signum)) for s in sigs}
+    old = {s: signal.signal(s, lambda signum, frame: noted.append(signum)) for s in STOP_SIGNALS}
     try:
         yield
     finally:

@@ -7,6 +7,7 @@ import asyncio
 import logging
 import runpy
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -139,6 +140,49 @@ def test_scene_and_own_view(app):
             await c.wait_for(lambda m: "coarse pass 1 of 2, 64 px wide" in str(m), start=n, timeout=60)
             await c.wait_for(lambda m: "Your view: full resolution, 256 px wide" in str(m), start=n, timeout=60)
             await c.set_value("Max resolution", 128)
+
+    run(go())
+
+
+def test_a_render_finishing_after_my_view_is_switched_off_is_not_sent(app):
+    """CI: a render of your view under way when *Render my view* was switched off was sent after the
+    switch, over the 3D preview the switch had just turned on, and hid that preview for good."""
+    started, release = threading.Event(), threading.Event()
+
+    class Held:  # the app, its renders of a view held until released: the race made certain
+        def __getattr__(self, name):
+            return getattr(app, name)
+
+        def render(self, *args, **kwargs):
+            started.set()
+            release.wait(120)
+            return app.render(*args, **kwargs)
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            before = set(app.views.clients)
+            await c.send_camera((4.0, -4.0, 3.0))
+            await c.wait_for(lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"], timeout=60)
+            (cid,) = set(app.views.clients) - before
+            app.views.run = Held()
+            try:
+                await c.send_camera((4.0, -3.0, 3.0))  # a new view to render, held in the render
+                await until(started.is_set, "a render of my view under way", timeout=120)
+                n, renders = len(c.messages), app.views.clients[cid].renders
+                await c.set_value("Render my view", False)
+                await until(lambda: not app.views.clients[cid].enabled, "my view switched off")
+                jobs = app.worker.jobs_done
+                release.set()
+                await until(lambda: app.worker.jobs_done > jobs, "the held render finished")
+            finally:
+                release.set()
+                app.views.run = app
+            assert app.preview.visible.get(cid) is True  # the preview the switch turned on stays
+            assert app.views.clients[cid].renders == renders
+            assert not any(m["type"] == "BackgroundImageMessage" and m["rgb_data"] for m in c.messages[n:])
+            n = len(c.messages)
+            await c.set_value("Render my view", True)  # and back on: rendered again
+            await c.wait_for(lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"], start=n, timeout=60)
 
     run(go())
 

@@ -5,6 +5,7 @@ Each test names the case of docs/RELIABILITY.md it keeps true. Signals go to rea
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -984,6 +985,34 @@ def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
     assert p.returncode == 130, out[-3000:]
     assert "terminate called" not in out and "Traceback" not in out
     assert load_checkpoint(tmp_path / "app")["step"] > 0
+
+
+@pytest.mark.slow
+def test_a_ctrl_c_while_the_app_exits_keeps_its_exit_code(tmp_path):
+    """CI: a second Ctrl-C that reached the app after it had stopped, while Python shut down, printed a
+    traceback or made the exit 'killed by SIGINT' (-2) instead of 130."""
+    p = start_app(tmp_path, "--checkpoint-every", "5")
+    try:
+        wait_served(p)
+        t_end = time.monotonic() + 300
+        while not (tmp_path / "app" / "checkpoint.pt").exists():  # training runs (its first periodic checkpoint)
+            assert time.monotonic() < t_end and p.poll() is None, "training did not start"
+            time.sleep(0.2)
+        p.send_signal(signal.SIGINT)
+        out = []
+        for line in p.stdout:
+            out.append(line)
+            if "[flipviz] stopped." in line:  # everything saved: the process now exits
+                for _ in range(3):
+                    with contextlib.suppress(ProcessLookupError):
+                        p.send_signal(signal.SIGINT)
+                break
+        out.append(p.communicate(timeout=120)[0])
+    finally:
+        p.kill()
+    text = "".join(out)
+    assert p.returncode == 130, text[-3000:]
+    assert "Traceback" not in text and "Exception ignored" not in text, text[-3000:]
 
 
 @pytest.mark.slow

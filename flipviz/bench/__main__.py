@@ -2,7 +2,7 @@
 
 import sys
 
-from flipviz.cli import main
+from flipviz.cli import run
 
 if __name__ == "__main__":
-    sys.exit(main(["bench", *sys.argv[1:]]))
+    run(["bench", *sys.argv[1:]])

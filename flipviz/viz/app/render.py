@@ -197,6 +197,7 @@ class ClientView:
     last_move: float = 0.0
     renders: int = 0
     gui: dict = field(default_factory=dict)
+    sending: threading.Lock = field(default_factory=threading.Lock)  # a finished render vs. a switch-off
 
 
 SNAP_LAYERS = ("blend", "|error|", "beta^2")
@@ -288,10 +289,12 @@ class ViewportRenderer:
 
         def setter(attr: str, cast=lambda v: v):
             def on_update(_) -> None:
-                setattr(view, attr, cast(view.gui[attr].value))
-                if attr == "enabled" and not view.enabled:
-                    client.scene.set_background_image(None)
-                    self.preview.set_visible(client.client_id, True)
+                with view.sending:  # a render finishing now sees the change (or is sent before it)
+                    setattr(view, attr, cast(view.gui[attr].value))
+                    if attr == "enabled" and not view.enabled:
+                        view.version += 1  # a render under way is dropped, not sent over the preview
+                        client.scene.set_background_image(None)
+                        self.preview.set_visible(client.client_id, True)
                 self.request(client.client_id)
 
             return on_update
@@ -418,23 +421,26 @@ class ViewportRenderer:
             cam, out, view.snapped
         )  # the Compare tab's view (it says its own depth), or ours
         image, bar, depth = composed if composed is not None else (*self._compose(view, cam, out), view_depth(cam, out))
-        try:
-            view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=depth)
-            line = pass_line(cam.width, 0 if moving else pass_idx, n_passes)
-            if view.gui["pass"].content != line:
-                view.gui["pass"].content = line
-            view.gui["colorbar"].visible = bar is not None
-            if bar is not None:
-                view.gui["colorbar"].image = palette.colorbar(*bar)
-        except RuntimeError as e:  # the client left while this rendered: viser removed its GUI handles
-            if "removed" not in str(e):
-                raise
-            return
-        view.renders += 1
+        with view.sending:
+            if view.version != version or client_id not in self.clients:
+                return  # moved or switched off while this rendered: a newer request is queued, or none is wanted
+            try:
+                view.client.scene.set_background_image(image, format="jpeg", jpeg_quality=88, depth=depth)
+                line = pass_line(cam.width, 0 if moving else pass_idx, n_passes)
+                if view.gui["pass"].content != line:
+                    view.gui["pass"].content = line
+                view.gui["colorbar"].visible = bar is not None
+                if bar is not None:
+                    view.gui["colorbar"].image = palette.colorbar(*bar)
+            except RuntimeError as e:  # the client left while this rendered: viser removed its GUI handles
+                if "removed" not in str(e):
+                    raise
+                return
+            view.renders += 1
+            if not moving and pass_idx + 1 == n_passes:
+                self.preview.set_visible(client_id, False)  # the exact view replaces the preview
         if moving:  # a coarse frame while the camera moves; the passes once it is still
             return self.request(client_id, delay=self.settle_s, debounce=True)
-        if pass_idx + 1 == n_passes:
-            self.preview.set_visible(client_id, False)  # the exact view replaces the preview
         if pass_idx + 1 < n_passes:  # the next, finer pass
             self.worker.submit(("view", client_id), lambda: self._render(client_id, version, pass_idx + 1), priority=1)
         elif self.run.training:  # keep the still view up to date with training
