@@ -24,7 +24,8 @@ AUTHORS_PRESET = {  # the official code's choices (docs/AUTHORS_SETTING.md)
     "refine": "all",
     "mirror_pose": "lookat",
     "refine_plane": False,
-    "disagreement_limit": float("inf"),
+    "disagreement_limit": float("inf"),  # no gate, pooled
+    "mirror_disagreement_limit": float("inf"),  # nor per mirror: every mirrored view trains to the end
 }
 BOX = np.array([[-1.0] * 3, [1.0] * 3])
 

@@ -362,6 +362,7 @@ FAST = TrainConfig()
 AUTHORS = FAST.with_settings(
     preset="authors", background="last", density_on="all", nll_channels="mean", beta_from="position",
     refine="all", mirror_pose="lookat", refine_plane=False, disagreement_limit=float("inf"),
+    mirror_disagreement_limit=float("inf"),
 )  # fmt: skip
 PAPER = AUTHORS.with_settings(
     preset="paper", field="nerf", n_samples=128, steps=50_000, uncertainty_start=0.2, batch_rays=1024,
