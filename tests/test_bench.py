@@ -22,7 +22,7 @@ from test_exports import parse_page
 from flipviz.bench import BenchConfig, plan, run_bench
 from flipviz.bench.config import parse_configs, parse_methods
 from flipviz.bench.paper_numbers import METHOD_ORDER, TABLE2, TABLE3
-from flipviz.bench.runner import resolve_scene
+from flipviz.bench.runner import RunSpec, resolve_scene
 from flipviz.bench.tables import render_markdown
 from flipviz.data.dataset import DatasetError
 from flipviz.training.config import EngineConfig, TrainConfig
@@ -311,6 +311,29 @@ def test_bench_on_ray(tmp_path: Path, cache: Path) -> None:
 
 
 # ------------------------------------------------------------------------- no training
+
+
+def test_the_table3_study_finds_its_finished_runs_again() -> None:
+    """The study resumes across sessions because the bench skips a finished run by its key: the study's
+    plan, parsed with today's code, must give every committed run its folder's key. A default changed
+    since (--after-drop) or a setting added (--mirror-disagreement-limit) re-ran 3-hour runs."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("study_table3", Path(__file__).parents[1] / "studies/study_table3.py")
+    study = importlib.util.module_from_spec(spec)
+    sys.modules["study_table3"] = study  # (its dataclasses look their module up)
+    spec.loader.exec_module(study)
+    from flipviz import cli
+
+    found = 0
+    for item in study.PLAN:
+        cfg = cli.parse_command(["bench", *item.bench_args(Path("unused"))])
+        for res in sorted((study.OUT / item.name / "runs").glob("*/result.json")):
+            r = json.loads(res.read_text())
+            run = RunSpec(r["scene"], r["data"] or None, r["method"], r["config"])  # the data folder as it ran
+            assert run.key(cfg) == res.parent.name, f"{item.name}: {res.parent.name} would run again"
+            found += 1
+    assert found >= 20  # lego's committed runs (docs/results/table3)
 
 
 def test_plan_keys_and_ablation(tmp_path: Path) -> None:

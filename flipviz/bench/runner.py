@@ -75,6 +75,16 @@ LATER_SETTINGS = {k: DEFAULTS[k] for k in ("eval_views", "eval_tune_steps", "eva
 LATER_SETTINGS["mirror_disagreement_limit"] = float("inf")  # the gate dropped all mirrors or none before it
 
 
+def settings_hash(settings: dict) -> str:
+    """A run's key's hash: its settings that change its result, written so that a run stored before a
+    setting was added, or before a default changed where it cannot matter, is found again."""
+    d = {k: v for k, v in settings.items() if k not in NOT_IN_KEY}
+    d = {k: v for k, v in d.items() if k not in LATER_SETTINGS or v != LATER_SETTINGS[k]}
+    if d["disagreement_limit"] == d.get("mirror_disagreement_limit", float("inf")) == float("inf"):
+        d["after_drop"] = "restart"  # no gate, no drop: what follows one cannot matter (its default until 5f89fed)
+    return hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One training of the bench. `ba` / `uncertainty` are the TrainConfig flags."""
@@ -117,11 +127,8 @@ class RunSpec:
         )
 
     def key(self, cfg: BenchConfig) -> str:
-        d = {k: v for k, v in self.train_config(cfg).to_dict().items() if k not in NOT_IN_KEY}
-        d = {k: v for k, v in d.items() if k not in LATER_SETTINGS or v != LATER_SETTINGS[k]}  # stored runs keep keys
-        return (
-            f"{self.scene}-{self.method.replace('+', 'u')}-c{self.config}-"
-            + hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+        return f"{self.scene}-{self.method.replace('+', 'u')}-c{self.config}-" + settings_hash(
+            self.train_config(cfg).to_dict()
         )
 
     def labels(self) -> dict:
