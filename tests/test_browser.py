@@ -267,11 +267,25 @@ def test_3b_click_a_pixel_of_the_snapped_view_to_probe_it(app, browser):
     text = panel_text(browser)
     assert "beta^2" in text and "opacity" in text and "ground truth RGB" in text
     img = shot(browser, "3b_probe").astype(int)  # the cyan marker at the click
-    x, y, w, h, s = canvas_rect(browser)
+    assert cyan_near_centre(img, browser) >= 4, "no probe marker drawn at the click"
+    # issue 45 item 7: snapped to another view, the reading and its marker go (the dot sat on the object)
+    choose(browser, "View", next(k for k in app.snap.views if k.startswith("test 5")))
+    button(browser, "Snap to view")
+    wait_until(
+        lambda: app.views.clients[cid].snapped is not None and app.views.clients[cid].snapped.name.startswith("test 5"),
+        30,
+        what="the other view",
+    )
+    wait_until(lambda: "Pixel (" not in panel_text(browser), 30, what="the reading gone from the panel")
+    wait_until(lambda: cyan_near_centre(shot(browser, "3b_probe_gone").astype(int), browser) == 0, 30, what="no marker")
+
+
+def cyan_near_centre(img: np.ndarray, d) -> int:
+    """Pixels of the probe's cyan marker within 30 px of the canvas centre."""
+    x, y, w, h, s = canvas_rect(d)
     x0, y0 = round(s * (x + w / 2)), round(s * (y + h / 2))
     patch = img[y0 - 30 : y0 + 30, x0 - 30 : x0 + 30]
-    cyan = (patch[..., 1] - patch[..., 0] > 60) & (patch[..., 2] - patch[..., 0] > 60)
-    assert cyan.sum() >= 4, "no probe marker drawn at the click"
+    return int(((patch[..., 1] - patch[..., 0] > 60) & (patch[..., 2] - patch[..., 0] > 60)).sum())
 
 
 def test_4_beta2_with_its_colour_bar(app, browser):
@@ -378,31 +392,36 @@ def canvas(d, img: np.ndarray) -> np.ndarray:
     return img[y : y + h, x : x + w]
 
 
-def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, tmp_path_factory):
+@pytest.fixture(scope="module")
+def run_b(app) -> Path:
+    """A finished B/L run of the chair beside A's folder (inside the app's browse roots): Compare's run B."""
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.run import train
+
+    b_dir = app.cfg.output.out.parent / "b-bl"
+    cfg = dict(scene="chair", method="bl", res=32, steps=150, batch_rays=512, mirror_plane="official")
+    train(TrainConfig.from_settings(**cfg, images_every=0, no_rrd=True, out=b_dir))
+    return b_dir
+
+
+def load_run_b(d, app, b_dir: Path) -> None:
+    tab(d, "Compare")
+    d.find_element("xpath", "//label[normalize-space()='Or a folder']/following::input[1]").send_keys(str(b_dir))
+    wait_until(lambda: app.compare.path_txt.value == str(b_dir), 10, what="the folder typed")
+    button(d, "Load run B")
+    wait_until(lambda: app.compare.b is not None, 60, what="run B")
+
+
+def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, run_b):
     """Issue 25: side by side is A | B, each the centre of your view at its full height and scale, with
     no plane square and no depth-masked silhouette of a third image over them."""
     import cv2
 
     from flipviz.data.cameras import Camera
-    from flipviz.training.config import TrainConfig
-    from flipviz.training.run import train
     from flipviz.training.saved_run import open_run
     from flipviz.viz.app.poses import camera_from_viser
 
-    b_dir = app.cfg.output.out.parent / "b-bl"  # beside A's folder: inside the app's browse roots
-    train(
-        TrainConfig.from_settings(
-            scene="chair",
-            method="bl",
-            res=32,
-            steps=150,
-            batch_rays=512,
-            mirror_plane="official",
-            images_every=0,
-            no_rrd=True,
-            out=b_dir,
-        )
-    )
+    b_dir = run_b
     tab(browser, "Train")
     checkbox(browser, "Render my view", True)  # whatever an earlier test left: the view compared is rendered
     button(browser, "Pause")
@@ -417,11 +436,7 @@ def test_6b_compare_side_by_side_shows_each_run_whole(app, browser, tmp_path_fac
     tab(browser, "Show")
     for name in overlays:  # the frustums drawn over the view: the pixels compared are the background image's
         checkbox(browser, name, False)
-    tab(browser, "Compare")
-    browser.find_element("xpath", "//label[normalize-space()='Or a folder']/following::input[1]").send_keys(str(b_dir))
-    wait_until(lambda: app.compare.path_txt.value == str(b_dir), 10, what="the folder typed")
-    button(browser, "Load run B")
-    wait_until(lambda: app.compare.b is not None, 60, what="run B")
+    load_run_b(browser, app, b_dir)
     assert app.mirror.show_plane.value is False  # the plane square is off while Compare draws the view
     wait_until(lambda: by_label(browser, "Show").get_attribute("value") == "split", 20, what="split, set by the server")
     choose(browser, "Show", "side by side")
@@ -501,6 +516,16 @@ def test_6c_a_keyframe_at_your_pose_is_hidden_and_every_colour_is_in_the_legend(
 
 def test_7_restart_with_bl(app, browser):
     tab(browser, "Train")
+    # issue 45 item 1: the paper setting on a CPU says it is sized for a GPU before it replaces anything
+    run_dir, step = app.trainer.run_dir, app.step
+    choose(browser, "Setting", "paper")
+    button(browser, "Restart training")
+    wait_until(lambda: "sized for a GPU" in panel_text(browser), 20, what="the paper setting's warning")
+    shot(browser, "7_ask_paper")
+    button(browser, "Keep this run")
+    wait_until(lambda: app.step > step + 5, 120, what="the kept run training on")
+    assert app.trainer.run_dir == run_dir and app.cfg.preset == "fast"
+    choose(browser, "Setting", "fast")
     choose(browser, "Method", "bl")
     button(browser, "Restart training")
     wait_until(lambda: "Replace this run" in browser.page_source, 20, what="the question before a restart")
@@ -514,7 +539,9 @@ def test_7_restart_with_bl(app, browser):
     shot(browser, "7_bl")
 
 
-def test_8_switch_scene(app, browser):
+def test_8_switch_scene(app, browser, run_b):
+    if app.compare.b is None:  # (test_6b loads it; alone, this test does)
+        load_run_b(browser, app, run_b)
     tab(browser, "Train")
     choose(browser, "Scene", "mug")
     choose(browser, "Method", "flip+u")
@@ -523,6 +550,10 @@ def test_8_switch_scene(app, browser):
     wait_until(lambda: app.setup is not None and app.setup.scene == "mug" and app.step > 5, 180, what="the mug run")
     wait_until(lambda: "mug | flip+u" in panel_text(browser), 30, what="the mug's status")
     wait_view(browser, "8_mug", lambda i: i.std() > 10)  # the mug's view drawn (a timeout fails the test)
+    # issue 45 item 2: Compare's run B (the chair) went with the chair, and the Compare tab says why
+    assert app.compare.b is None
+    tab(browser, "Compare")
+    wait_until(lambda: "was unloaded: it shows chair" in panel_text(browser), 30, what="why run B went")
 
 
 def test_9_a_paused_app_goes_quiet_in_the_browser(app, browser):
