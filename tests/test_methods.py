@@ -101,7 +101,7 @@ def test_original_poses_fixed_unless_refine_all(chair, tmp_path, refine):
     for _ in range(cfg.engine.steps):
         tr._train_step()
     with torch.no_grad():
-        now = tr.current_poses()
+        now = tr.flip.poses()
     init = tr.training.init_c2w
     is_input = torch.tensor([v.kind == "input" for v in tr.training.views])
     moved = (now - init).abs().flatten(1).amax(1)

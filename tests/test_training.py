@@ -345,7 +345,7 @@ def test_ba_recovers_a_perturbed_mirrored_pose_at_default_settings(tmp_path):
         tr.flip.refiner.init_c2w[k] = torch.as_tensor(bad, dtype=torch.float32)
     rot0, trans0 = pose_errors(bad, true)
     tr.run()
-    poses = tr.current_poses().detach().double().numpy()
+    poses = tr.flip.poses().detach().double().numpy()
     rot1, trans1 = pose_errors(poses[k], true)
     assert rot1 < 0.3 * rot0 and trans1 < 0.4 * trans0, (rot0, trans0, rot1, trans1)
     inputs = [i for i, v in enumerate(tr.training.views) if v.kind == "input"]

@@ -32,7 +32,6 @@ from flipviz.data.cameras import Camera, rays_from_c2w
 from flipviz.data.dataset import SceneData
 from flipviz.errors import UserError
 from flipviz.files import FolderLock, cannot_write, signals_deferred
-from flipviz.geometry.symmetry import PlaneEstimate
 from flipviz.model.objective import psnr
 from flipviz.model.radiance import RenderCancelled
 from flipviz.runtime import keep_freed_memory
@@ -48,7 +47,6 @@ from flipviz.training.events import (
     StepEvent,
 )
 from flipviz.training.flip import Action
-from flipviz.training.plane_estimate import estimate_plane
 from flipviz.training.pose_tuning import eval_renders
 from flipviz.training.setup import (
     RunSetup,
@@ -186,18 +184,6 @@ class Trainer:
         with self._lock:
             return self.model.point_cloud(min_alpha, max_points)
 
-    def estimate_plane(self) -> PlaneEstimate:
-        """The mirror plane estimated from this run's inputs alone (--mirror-plane auto's estimate;
-        the run's own when it used auto). Does not touch the training; about 10-20 s on 2 cores."""
-        if self.plane_estimate is not None:
-            return self.plane_estimate
-        return estimate_plane(self.split.inputs, self.scene, self.cfg.engine.device, self.cfg.engine.seed)
-
-    # ------------------------------------------------------------------ poses
-    def current_poses(self) -> torch.Tensor:
-        """(V, 4, 4) current poses of all training views (mirrors: moved with the refined plane and by BA)."""
-        return self.flip.poses()
-
     # ------------------------------------------------------------------ one step
     def _step(self) -> dict:
         """One training step, timed, then what Flip asks for after it; its scalars."""
@@ -219,7 +205,7 @@ class Trainer:
         # (R,) random pixels: the inputs' alone before the mirrors join, and after a drop
         idx = self.flip.sample(cfg.engine.batch_rays, self._gen, self.step)
         view = bank.view[idx]
-        o, d = rays_from_c2w(self.current_poses().index_select(0, view), bank.dirs_cam[idx])  # (R, 3) each
+        o, d = rays_from_c2w(self.flip.poses().index_select(0, view), bank.dirs_cam[idx])  # (R, 3) each; mirrors: BA's
         out = self.model.render_rays(o, d, training=True)
         target = bank.rgb[idx]
         total = self.flip.loss(out, target, view, field_step) + self.model.regulariser()
