@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 import tyro
+from browser import wait_until
 from viser_client import ViserTestClient, until
 
 from flipviz.data.cameras import Camera
@@ -40,6 +41,12 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def trained(a: App, steps: int) -> bool:
+    """Whether `a`'s run has set up and trained `steps` steps; a run that failed fails the test at once."""
+    assert a.status != "error", a.message
+    return a.setup is not None and a.step >= steps
+
+
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     cfg = AppConfig.from_settings(
@@ -61,11 +68,8 @@ def app(tmp_path_factory):
     )
     a = App(cfg).start()  # the app's default plane, auto: the run starts after the estimate (~10-20 s idle)
     try:  # whatever happens, the app (and its 100k-step run) is stopped
-        deadline = time.monotonic() + 600  # a generous bound: a busy machine makes the estimate slow
-        while (a.setup is None or a.step < 2) and time.monotonic() < deadline:
-            assert a.status != "error", a.message
-            time.sleep(0.1)
-        assert a.setup is not None and a.step >= 2, f"training did not start: {a.status} {a.message}"
+        # a generous bound: a busy machine makes the estimate slow
+        wait_until(lambda: trained(a, 2), 600, every=0.1, what="training to start")
         yield a
     finally:
         a.stop()
@@ -627,10 +631,11 @@ def test_the_curves_plot_the_unobserved_views_the_mirrors_and_the_plane(app):
     assert [s["label"] for s in psnr["props"]["series"]] == ["steps trained", "train batch", "unobserved views"]
     assert len(poses["props"]["series"]) == 1 + n_mirrors
     assert [s["label"] for s in plane["props"]["series"]] == ["steps trained", "angle (deg)", "offset (units)"]
-    deadline = time.monotonic() + 120
-    while not (np.isfinite(app.train.plot.data[2]).sum() >= 1 and app.mirror.curves.plane.visible):
-        assert time.monotonic() < deadline, "no test evaluation or plane curve was plotted"
-        time.sleep(0.2)
+    wait_until(
+        lambda: np.isfinite(app.train.plot.data[2]).sum() >= 1 and app.mirror.curves.plane.visible,
+        120,
+        what="a test evaluation and the plane curve plotted",
+    )
     x, train, test = app.train.plot.data
     with app.events.curves() as curves:
         evals = dict(curves.test)
@@ -675,10 +680,8 @@ def test_the_pixel_probe_reads_a_clicked_pixel_of_the_snapped_view(app):
             await c.wait_for(lambda m: "Pixel probe: snap to a view" in str(m), start=n)
             return marker, read
 
-    deadline = time.monotonic() + 60
-    while not any(k.startswith("test") for k in app.snap.views):  # the views are listed by the UI tick
-        assert time.monotonic() < deadline, "the run's views were never listed"
-        time.sleep(0.1)
+    # the views are listed by the UI tick
+    wait_until(lambda: any(k.startswith("test") for k in app.snap.views), 60, every=0.1, what="the run's views")
     app.pause()
     try:
         key, other = [k for k in app.snap.views if k.startswith("test")][:2]
@@ -841,16 +844,12 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
     )
     a = App(cfg).start()
     try:
-        deadline = time.monotonic() + 120
-        while (a.setup is None or a.step < 1) and time.monotonic() < deadline:
-            assert a.status != "error", a.message
-            time.sleep(0.1)
-        assert a.setup is not None and a.setup.plane_estimate is not None, f"{a.status} {a.message}"
+        wait_until(lambda: trained(a, 1), 120, every=0.1, what="the doubted run")
+        assert a.setup.plane_estimate is not None
         assert a.setup.plane is None and a.setup.plane_estimate.confidence < 0.25  # dropped
         assert not a.trainer.spec.mirrors and not a.trainer.training.mirror_ids  # it trains B/L's views
-        while "**not confident**" not in a.mirror.plane_text.content:  # the UI tick builds the Mirror tab
-            assert time.monotonic() < deadline, a.mirror.plane_text.content
-            time.sleep(0.1)
+        # the UI tick builds the Mirror tab
+        wait_until(lambda: "**not confident**" in a.mirror.plane_text.content, 120, every=0.1, what="the note")
         assert "trains on **no** mirrored view" in a.mirror.plane_text.content
         # the lesson of a doubted plane in one click (issue 26): the dropped mirrors drawn, scored, disagreeing
 
@@ -910,11 +909,8 @@ def test_the_frustums_and_the_mirror_tab_show_each_mirror_s_verdict(tmp_path):
     )
     a = App(cfg).start()
     try:
-        deadline = time.monotonic() + 600
-        while not any(a.scene.dropped) or "Mirrored views dropped" not in a.mirror.curves.verdict.content:
-            assert a.status != "error", a.message
-            assert time.monotonic() < deadline, (a.step, a.mirror.curves.verdict.content)
-            time.sleep(0.1)
+        dropped_shown = lambda: any(a.scene.dropped) and "Mirrored views dropped" in a.mirror.curves.verdict.content  # noqa: E731
+        wait_until(lambda: trained(a, 0) and dropped_shown(), 600, every=0.1, what="a mirror dropped and said")
         a.trainer.pause()
         names = a.mirror.curves.names
         dropped = [n for n, gone in zip(names, a.scene.dropped) if gone]
@@ -923,9 +919,7 @@ def test_the_frustums_and_the_mirror_tab_show_each_mirror_s_verdict(tmp_path):
         assert not any(f"{n} at step" in text for n, gone in zip(names, a.scene.dropped) if not gone), text
         for h, gone in zip(a.scene.mirror_handles, a.scene.dropped):
             assert (tuple(h.color) == palette.DROPPED) == gone
-        while a.mirror.curves.agreement is None or not a.mirror.curves.agreement.visible:
-            assert time.monotonic() < deadline
-            time.sleep(0.1)
+        wait_until(lambda: a.mirror.curves.agreement is not None and a.mirror.curves.agreement.visible, 120, 0.1)
         assert len(a.mirror.curves.agreement.data) == 4 + len(names)  # step, pooled, two limits, one per mirror
 
         async def anyway():  # issue 45: the lesson one click away whenever the gate dropped mirrors
@@ -958,10 +952,7 @@ def test_the_mirror_tab_follows_the_plane_training_refines(app):
             assert trail["type"] == "LineSegmentsMessage"
 
     run(go())
-    t = time.monotonic()
-    while len(app.mirror.trail.tips) < 3:
-        assert time.monotonic() - t < 60, len(app.mirror.trail.tips)
-        time.sleep(0.1)
+    wait_until(lambda: len(app.mirror.trail.tips) >= 3, 60, every=0.1, what="3 tips of the plane's trail")
     text = app.mirror.trail.text.content
     assert "Refined plane" in text and "off the true plane" in text, text
     plane = app.mirror.train_plane  # the plane training uses now, which the quad shows
@@ -972,10 +963,12 @@ def test_the_mirror_tab_follows_the_plane_training_refines(app):
     from flipviz.geometry.symmetry import plane_error
 
     est = app.mirror.estimate.estimate  # the run's own estimate: issue 45, measured against the plane in use
-    t = time.monotonic()
-    while f"{plane_error(est.plane, app.mirror.train_plane)[0]:.2f} deg" not in app.mirror.estimate.against.content:
-        assert time.monotonic() - t < 30, app.mirror.estimate.against.content  # (both move with training)
-        time.sleep(0.1)
+    wait_until(  # (both move with training)
+        lambda: f"{plane_error(est.plane, app.mirror.train_plane)[0]:.2f} deg" in app.mirror.estimate.against.content,
+        30,
+        every=0.1,
+        what="the estimate measured against the plane in use",
+    )
     assert "as training refined it at step" in app.mirror.estimate.against.content
 
 
