@@ -623,3 +623,47 @@ def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory
         assert not doubted.trainer.training.mirror_ids  # still not trained on
     finally:
         doubted.stop()
+
+
+def test_11_the_mirror_tab_charts_span_their_data(browser, tmp_path_factory):
+    """The agreement chart drew no line (the README's screenshots): its y range, re-set on the open page,
+    left uPlot's x scale at [-41.8, -36.7] for steps 10-2032. Read from the page's own uPlot charts
+    (viser's testpoints) while 40 points come in on the Mirror tab: each of its charts spans its data."""
+    cfg = AppConfig.from_settings(
+        scene="chair",
+        res=48,
+        steps=100_000,
+        batch_rays=512,
+        no_rrd=True,
+        port=0,
+        images_every=0,
+        checkpoint_every=0,
+        eval_on_stop=False,
+        mirror_plane="official",
+        uncertainty_start=0.0005,  # the NLL, and the agreement chart, from step 50
+        out=tmp_path_factory.mktemp("charts") / "run",
+    )
+    a = App(cfg).start()
+    try:
+        wait_until(lambda: a.mirror.curves.agreement is not None and a.mirror.curves.agreement.visible, 300)
+        browser.get(f"http://127.0.0.1:{a.port}")
+        wait_until(lambda: browser.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        tab(browser, "Mirror")  # open while 40 points of each curve come in (the README's screenshot: no line)
+        wait_until(lambda: len(a.mirror.curves.agreement.data[0]) >= 40, 300, what="40 points of agreement")
+        spans = """return Object.values(window.__viserTestpoints.uplots || {}).map(t => {
+            const u = t.chart, x = u.data[0];
+            return [u.root.querySelector('.u-title').textContent, x.length, x[0], x[x.length - 1], u.scales.x.min,
+                    u.scales.x.max];
+        });"""
+
+        def charts_span_their_data():
+            charts = [c for c in browser.execute_script(spans) if not c[0].startswith("PSNR") and c[1] >= 5]
+            ok = len(charts) == 3 and all(lo <= x0 and x1 <= hi for _, _, x0, x1, lo, hi in charts)
+            return charts if ok else None
+
+        try:
+            wait_until(charts_span_their_data, 60, every=1.0, what="the Mirror tab's 3 charts over their data")
+        finally:
+            print(browser.execute_script(spans))
+    finally:
+        a.stop()

@@ -91,26 +91,34 @@ class MirrorCurves:
                     axes=({}, {}, {"scale": "off", "side": 1, "grid": {"show": False}}),
                     visible=False,
                 )
-            self.agreement = self.server.gui.add_uplot(
-                (np.zeros(1), *np.zeros((3 + len(names), 1))),
+        self.agreement = self._agreement_chart(top=1.0)
+
+    def _agreement_chart(self, top: float, order: float | None = None) -> viser.GuiUplotHandle:
+        """The agreement chart, its y axis 0 to `top` (set here: uPlot's own range breaks on a leading NaN,
+        and the limit must stay in view). A new top is a new chart: the browser's chart, rebuilt with
+        other scales, kept a stale x range (steps 10-440 shown on [-3.7, -2.3]: no line drawn)."""
+        colors = [palette.hex_color(palette.series_color(i, len(self.names))) for i in range(len(self.names))]
+        with self.folder:
+            return self.server.gui.add_uplot(
+                (np.zeros(1), *np.zeros((3 + len(self.names), 1))),
                 (
                     {"label": "steps trained"},
                     {"label": "all mirrors", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 3},
                     {"label": "limit (all)", "stroke": "#888888", "width": 1, "dash": [6, 4]},
                     {"label": "limit (each)", "stroke": "#bbbbbb", "width": 1, "dash": [2, 4]},
-                    *({"label": n, "stroke": c, "width": 1} for n, c in zip(names, colors)),
+                    *({"label": n, "stroke": c, "width": 1} for n, c in zip(self.names, colors)),
                 ),
                 title=AGREE_TITLE,
-                scales={"x": {"time": False}, "y": {"auto": False, "range": [0.0, 1.0]}},
+                scales={"x": {"time": False}, "y": {"auto": False, "range": [0.0, top]}},
                 aspect=1.6,
-                legend={"show": len(names) <= 8},
+                legend={"show": len(self.names) <= 8},
                 visible=False,
+                order=order,
             )
 
     def show(self, curves: RunCurves) -> None:
         """The run's curves (RunCurves' mirror, plane and agreement data); each sent only when it has a new
-        step. The agreement's y range is set here (uPlot's own range breaks on a leading NaN, and the
-        limit must stay in view); the gate's verdict goes in the text above the charts."""
+        step; the gate's verdict goes in the text above the charts."""
         poses, plane, agree = curves.mirror_data(), curves.plane_data(), curves.agreement_data()
         key = tuple((len(d[0]), float(d[0][-1])) if d else () for d in (poses, plane, agree))
         if key == self._plotted:
@@ -120,11 +128,10 @@ class MirrorCurves:
         if self.agreement is not None and len(agree) >= 4 and len(agree[0]) >= 2:
             agree = (*agree, *np.full((4 + len(self.names) - len(agree), len(agree[0])), np.nan))  # pooled-only runs
             limits = [v for v in (curves.limit, curves.mirror_limit) if np.isfinite(v)]
-            top = float(np.nanmax([*agree[1], *np.ravel(agree[4:]), *limits, 0.0]))
-            self.agreement.scales = {
-                "x": {"time": False},
-                "y": {"auto": False, "range": [0.0, float(np.ceil(top * 1.1 + 0.01))]},
-            }
+            top = float(np.ceil(np.nanmax([*agree[1], *np.ravel(agree[4:]), *limits, 0.0]) * 1.1 + 0.01))
+            if self.agreement.scales["y"]["range"][1] != top:
+                old, self.agreement = self.agreement, self._agreement_chart(top, order=self.agreement.order)
+                old.remove()
         for plot, data, title in (
             (self.poses, poses, POSE_TITLES[curves.mirror_vs_truth]),
             (self.plane, plane, PLANE_TITLES[curves.plane_vs_truth]),
