@@ -201,6 +201,8 @@ def test_run_report_is_one_offline_page(runs, tmp_path, monkeypatch):
             d.get(out.resolve().as_uri())
             ok = d.execute_script("return Array.from(document.images).map(i => i.complete && i.naturalWidth > 0)")
             assert len(ok) == len(imgs) and all(ok)
+            text = d.find_element("tag name", "body").text  # issue 45 item 4: the page states the refined plane
+            assert f"{plane['refined_error_deg']:.3f} deg, offset {plane['refined_error_offset']:.4f} (refined" in text
 
 
 def test_ctrl_c_during_a_video_leaves_no_file_and_bad_runs_are_one_line(runs, tmp_path, capsys):
