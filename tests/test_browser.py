@@ -628,7 +628,8 @@ def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory
 def test_11_the_mirror_tab_charts_span_their_data(browser, tmp_path_factory):
     """The agreement chart drew no line (the README's screenshots): its y range, re-set on the open page,
     left uPlot's x scale at [-41.8, -36.7] for steps 10-2032. Read from the page's own uPlot charts
-    (viser's testpoints) while 40 points come in on the Mirror tab: each of its charts spans its data."""
+    (viser's testpoints) while 40 points come in on the Mirror tab: each of its charts spans its data; and
+    the PSNR chart on the Train tab (whose range changed while hidden: [-5, -3.5] for steps 10-430)."""
     cfg = AppConfig.from_settings(
         scene="chair",
         res=48,
@@ -661,8 +662,15 @@ def test_11_the_mirror_tab_charts_span_their_data(browser, tmp_path_factory):
             ok = len(charts) == 3 and all(lo <= x0 and x1 <= hi for _, _, x0, x1, lo, hi in charts)
             return charts if ok else None
 
+        def psnr_spans_its_data() -> bool:  # its range too is set by the server, whole dB by whole dB
+            return [lo <= x0 and x1 <= hi for t, _, x0, x1, lo, hi in browser.execute_script(spans) if t == "PSNR (dB)"]
+
         try:
             wait_until(charts_span_their_data, 60, every=1.0, what="the Mirror tab's 3 charts over their data")
+            tab(browser, "Train")
+            n = len(a.train.plot.data[0])
+            wait_until(lambda: len(a.train.plot.data[0]) >= n + 10, 120, what="10 more points of PSNR")
+            wait_until(lambda: psnr_spans_its_data() == [True], 60, every=1.0, what="the PSNR chart over its data")
         finally:
             print(browser.execute_script(spans))
     finally:

@@ -182,8 +182,8 @@ class App:
         gui.configure_theme(control_width="large", show_share_button=False, brand_color=palette.CAMERA["mirror"])
         gui.main_panel.dock_right()  # beside the 3D view, not over it: the whole canvas is seen (side by side's B)
         tabs = gui.add_tab_group()
-        with tabs.add_tab("Train", viser.Icon.PLAYER_PLAY):
-            self.train = TrainPanel(self.server, self.pause, self.resume, self.restart_with)
+        with tabs.add_tab("Train", viser.Icon.PLAYER_PLAY) as train_tab:
+            self.train = TrainPanel(self.server, self.pause, self.resume, self.restart_with, tab=train_tab)
             self.your_view = gui.add_folder("Your view")
         with tabs.add_tab("Views", viser.Icon.CAMERA):
             with gui.add_folder("Snap to view"):

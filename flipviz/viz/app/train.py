@@ -96,29 +96,14 @@ class TrainPanel:
         on_pause: Callable[[], None],
         on_resume: Callable[[], None],
         on_restart: Callable[[RunChoice, viser.ClientHandle | None], None],
+        tab: viser.GuiTabHandle,
     ) -> None:
+        """Built inside `tab` (the Train tab), where a new PSNR chart goes when its range changes."""
         gui = server.gui
+        self.server, self._tab = server, tab
         self.progress_md = gui.add_markdown("_Starting..._")
         self.progress_bar = gui.add_progress_bar(0.0, animated=False, color="orange")
-        self.plot = gui.add_uplot(
-            (np.array([0.0, 1.0]), np.array([0.0, 0.0]), np.array([np.nan, np.nan])),
-            (
-                {"label": "steps trained"},
-                {"label": "train batch", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
-                {
-                    "label": "unobserved views",
-                    "stroke": palette.hex_color(palette.CAMERA["test"]),
-                    "width": 2,
-                    "spanGaps": True,
-                    "points": {"show": True, "size": 6},
-                    "scale": "test",
-                },
-            ),
-            title="PSNR (dB)",
-            scales=psnr_scales((0.0, 1.0)),
-            aspect=1.6,
-            visible=False,
-        )
+        self.plot = self._psnr_chart((0.0, 1.0))
         self._plotted: tuple | None = None  # (points, last step, evaluations) of the curves shown
         self._range: tuple[float, float] = (0.0, 1.0)
         self.pace = Pace()  # steps per wall second, for the ETA
@@ -195,6 +180,30 @@ class TrainPanel:
         self.pause_btn.disabled = status != "running"
         self.resume_btn.disabled = status != "paused"
 
+    def _psnr_chart(self, rng: tuple[float, float], order: float | None = None) -> viser.GuiUplotHandle:
+        """The PSNR chart on the range `rng`. A new range is a new chart: the browser's chart, given other
+        scales, could keep a stale x range (steps 10-430 shown on [-5, -3.5]: no line drawn)."""
+        return self.server.gui.add_uplot(
+            (np.array([0.0, 1.0]), np.array([0.0, 0.0]), np.array([np.nan, np.nan])),
+            (
+                {"label": "steps trained"},
+                {"label": "train batch", "stroke": palette.hex_color(palette.CAMERA["mirror"]), "width": 2},
+                {
+                    "label": "unobserved views",
+                    "stroke": palette.hex_color(palette.CAMERA["test"]),
+                    "width": 2,
+                    "spanGaps": True,
+                    "points": {"show": True, "size": 6},
+                    "scale": "test",
+                },
+            ),
+            title="PSNR (dB)",
+            scales=psnr_scales(rng),
+            aspect=1.6,
+            visible=False,
+            order=order,
+        )
+
     def set_plot(self, data: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         """The run's PSNR curves (RunCurves.psnr_data: steps, training batch, unobserved views); hidden
         until it has two points (a new run's plot starts empty, never the last run's or a degenerate
@@ -209,8 +218,11 @@ class TrainPanel:
         rng = (float(np.floor(finite.min())) - 1.0, float(np.ceil(finite.max())) + 1.0)  # whole dB: rarely changes
         if rng != self._range:
             self._range = rng
-            self.plot.scales = psnr_scales(rng)
+            with self._tab:
+                old, self.plot = self.plot, self._psnr_chart(rng, order=self.plot.order)
+            old.remove()
         self.plot.data = data
+        self.plot.visible = True
 
     def show_progress(
         self,
