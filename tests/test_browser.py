@@ -159,6 +159,11 @@ def checkbox(d, label: str, value: bool) -> None:
         d.execute_script("arguments[0].click();", el)
 
 
+def modal_open(d) -> bool:
+    """Whether a modal (Restart's question) or its fading overlay still covers the page."""
+    return any(o.is_displayed() for o in d.find_elements("css selector", ".mantine-Modal-overlay"))
+
+
 def panel_text(d) -> str:
     return d.find_element("tag name", "body").text
 
@@ -523,6 +528,7 @@ def test_7_restart_with_bl(app, browser):
     wait_until(lambda: "sized for a GPU" in panel_text(browser), 20, what="the paper setting's warning")
     shot(browser, "7_ask_paper")
     button(browser, "Keep this run")
+    wait_until(lambda: not modal_open(browser), 30, what="the question closed")
     wait_until(lambda: app.step > step + 5, 120, what="the kept run training on")
     assert app.trainer.run_dir == run_dir and app.cfg.preset == "fast"
     choose(browser, "Setting", "fast")
