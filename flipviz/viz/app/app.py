@@ -433,10 +433,11 @@ class App:
         """The mirror plane estimated from the current run's inputs alone (None while no run exists): the run's
         own when it used auto, else estimated now (10-20 s on 2 cores; the training is not touched)."""
         trainer = self.trainer
-        if trainer is None or trainer.plane_estimate is not None:
-            return None if trainer is None else trainer.plane_estimate
-        device, seed = trainer.cfg.engine.device, trainer.cfg.engine.seed
-        return estimate_plane(trainer.split.inputs, trainer.scene, device, seed)
+        if trainer is None:
+            return None
+        if trainer.plane_estimate is not None:
+            return trainer.plane_estimate
+        return estimate_plane(trainer.split.inputs, trainer.scene, trainer.cfg.engine.device, trainer.cfg.engine.seed)
 
     # ---- UI thread --------------------------------------------------------------------------
     def _ui_loop(self, period: float = 0.25) -> None:
