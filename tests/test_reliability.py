@@ -967,15 +967,20 @@ def wait_served(p: subprocess.Popen) -> str:
     return "".join(lines)
 
 
+def wait_checkpointed(p: subprocess.Popen, run_dir: Path) -> None:
+    """Until the app's run has written its first periodic checkpoint (training runs); fails if it exits."""
+    t_end = time.monotonic() + 300
+    while not (run_dir / "checkpoint.pt").exists():
+        assert time.monotonic() < t_end and p.poll() is None, "training did not start"
+        time.sleep(0.2)
+
+
 @pytest.mark.slow
 def test_app_double_ctrl_c_keeps_the_checkpoint(tmp_path):
     p = start_app(tmp_path, "--checkpoint-every", "5")
     try:
         wait_served(p)
-        t_end = time.monotonic() + 300
-        while not (tmp_path / "app" / "checkpoint.pt").exists():  # training runs (its first periodic checkpoint)
-            assert time.monotonic() < t_end and p.poll() is None, "training did not start"
-            time.sleep(0.2)
+        wait_checkpointed(p, tmp_path / "app")
         p.send_signal(signal.SIGINT)
         time.sleep(0.05)
         p.send_signal(signal.SIGINT)  # impatient
@@ -994,10 +999,7 @@ def test_a_ctrl_c_while_the_app_exits_keeps_its_exit_code(tmp_path):
     p = start_app(tmp_path, "--checkpoint-every", "5")
     try:
         wait_served(p)
-        t_end = time.monotonic() + 300
-        while not (tmp_path / "app" / "checkpoint.pt").exists():  # training runs (its first periodic checkpoint)
-            assert time.monotonic() < t_end and p.poll() is None, "training did not start"
-            time.sleep(0.2)
+        wait_checkpointed(p, tmp_path / "app")
         p.send_signal(signal.SIGINT)
         out = []
         for line in p.stdout:
