@@ -134,3 +134,12 @@ def screenshot_png(driver, timeout: float = 300.0) -> bytes:
             return None
 
     return wait_until(attempt, timeout, every=1.0, what="a screenshot")
+
+
+def quiet_app(out, **settings):
+    """An AppConfig for a test: a long run (the test stops it) on a free port, with no recording, periodic
+    images, checkpoints or final evaluation; `settings` add to these or override them."""
+    from flipviz.viz.app.app import AppConfig
+
+    base = dict(steps=100_000, no_rrd=True, port=0, images_every=0, checkpoint_every=0, eval_on_stop=False)
+    return AppConfig.from_settings(**(base | settings), out=out)

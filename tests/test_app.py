@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 import tyro
-from browser import wait_until
+from browser import quiet_app, wait_until
 from viser_client import ViserTestClient, until
 
 from flipviz.data.cameras import Camera
@@ -779,17 +779,11 @@ def test_train_b_next_to_the_running_a(app):
 def test_run_b_is_unloaded_when_run_a_changes_scene(tmp_path):
     """Issue 45 item 2: after Restart -> mug, run B (the chair's B/L) would be composed with another object:
     it is unloaded (its training stopped, its folder kept), Compare turns off and its panel says why."""
-    cfg = AppConfig.from_settings(
+    cfg = quiet_app(
+        tmp_path / "run",
         scene="chair",
         res=24,
-        steps=100_000,
         batch_rays=256,
-        no_rrd=True,
-        port=0,
-        images_every=0,
-        checkpoint_every=0,
-        eval_on_stop=False,
-        out=tmp_path / "run",
         view_width=64,
         mirror_plane="official",  # no estimate to wait for
     )
@@ -828,17 +822,11 @@ def test_the_mirror_tab_says_when_an_unconfident_plane_drops_the_mirrors(tmp_pat
     so the Flip+U run trains on no mirrored view, and the Mirror tab says so and why."""
     from flipviz.viz import palette
 
-    cfg = AppConfig.from_settings(
+    cfg = quiet_app(
+        tmp_path / "run",
         scene="chair",
         res=24,
-        steps=100_000,
         batch_rays=256,
-        no_rrd=True,
-        port=0,
-        images_every=0,
-        checkpoint_every=0,
-        eval_on_stop=False,
-        out=tmp_path / "run",
         view_width=64,
         unconfident_plane="drop",
     )
@@ -887,19 +875,13 @@ def test_the_frustums_and_the_mirror_tab_show_each_mirror_s_verdict(tmp_path):
     dropped view with its step, and its chart has one ratio line per mirror beside the pooled one."""
     from flipviz.viz import palette
 
-    cfg = AppConfig.from_settings(
+    cfg = quiet_app(
+        tmp_path / "run",
         scene="mug",
         config=4,
         res=32,
-        steps=100_000,
         batch_rays=512,
-        no_rrd=True,
-        port=0,
         log_every=2,
-        images_every=0,
-        checkpoint_every=0,
-        eval_on_stop=False,
-        out=tmp_path / "run",
         view_width=64,
         mirror_plane="official",
         uncertainty_start=0.0005,  # the NLL, and the gate, from step 50

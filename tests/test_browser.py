@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 import viser
-from browser import CountingProxy, chromium, chromium_available, screenshot_png, wait_until
+from browser import CountingProxy, chromium, chromium_available, quiet_app, screenshot_png, wait_until
 
 from flipviz.viz import palette
 from flipviz.viz.app.app import App, AppConfig
@@ -590,17 +590,11 @@ def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory
     """Issue 26 item 4: the chair's estimate from 24-px inputs is doubted and, with --unconfident-plane drop,
     its mirrors dropped; one button draws them, scores them and colours them red-yellow-green, though
     training still ignores them."""
-    cfg = AppConfig.from_settings(
+    cfg = quiet_app(
+        tmp_path_factory.mktemp("doubted") / "run",
         scene="chair",
         res=24,
-        steps=100_000,
         batch_rays=256,
-        no_rrd=True,
-        port=0,
-        images_every=0,
-        checkpoint_every=0,
-        eval_on_stop=False,
-        out=tmp_path_factory.mktemp("doubted") / "run",
         unconfident_plane="drop",
         estimate_after=0,
     )  # the separate fit's doubted estimate
@@ -636,19 +630,13 @@ def test_11_the_mirror_tab_charts_span_their_data(browser, tmp_path_factory):
     left uPlot's x scale at [-41.8, -36.7] for steps 10-2032. Read from the page's own uPlot charts
     (viser's testpoints) while 40 points come in on the Mirror tab: each of its charts spans its data; and
     the PSNR chart on the Train tab (whose range changed while hidden: [-5, -3.5] for steps 10-430)."""
-    cfg = AppConfig.from_settings(
+    cfg = quiet_app(
+        tmp_path_factory.mktemp("charts") / "run",
         scene="chair",
         res=48,
-        steps=100_000,
         batch_rays=512,
-        no_rrd=True,
-        port=0,
-        images_every=0,
-        checkpoint_every=0,
-        eval_on_stop=False,
         mirror_plane="official",
         uncertainty_start=0.0005,  # the NLL, and the agreement chart, from step 50
-        out=tmp_path_factory.mktemp("charts") / "run",
     )
     a = App(cfg).start()
     try:
