@@ -112,6 +112,9 @@ def test_the_trainer_sees_flip_only_through_its_interface():
         and n.attr in inner
     }
     assert not reads, f"the trainer reads Flip's internals: {sorted(reads)}"
+    (trainer,) = [n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Trainer"]
+    lines = trainer.end_lineno - trainer.lineno + 1
+    assert lines <= 330, f"Trainer has {lines} lines: what it gained belongs behind an interface (issue 42: <= 330)"
 
 
 VIZ_WINGS = ("floor", "rerun", "export", "app")  # viz/: the shared floor, then its wings; the app may use them all

@@ -228,6 +228,23 @@ def test_a_stop_ends_an_evaluation_between_chunks_of_rays_and_keeps_the_checkpoi
     assert "evaluation" not in m["message"], m["message"]  # none was begun, so none was interrupted
 
 
+def test_a_slow_evaluation_says_which_view_it_is_at(chair, tmp_path, monkeypatch):
+    """Issue 45 item 5: an evaluation longer than SLOW_EVALUATION_S says on_phase which of its views it renders
+    (the paper's NeRF on a CPU: minutes a view); a quick one says nothing."""
+    cfg = TrainConfig.from_settings(method="bl", steps=2, images_every=0, out=tmp_path / "run", **TINY)
+    said: list[str] = []
+    tr = Trainer(cfg, scene=chair, on_phase=said.append)
+    tr.render_tests()
+    assert not said
+    monkeypatch.setattr(ev, "SLOW_EVALUATION_S", 0.0)  # every view is past it
+    tr.render_tests()
+    n = len(tr.split.tests)
+    assert [s.split(" (")[0] for s in said] == [
+        f"rendering the unobserved views: view {i} of {n}" for i in range(1, n + 1)
+    ]
+    tr.close()
+
+
 class PauseAt(Observer):
     """Pauses the trainer from its own thread right after step `at`; every StepEvent sets `stepped`."""
 

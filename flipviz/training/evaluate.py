@@ -15,6 +15,7 @@ missing the metric is the string "unavailable" with a one-line reason: never a m
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from flipviz.training.methods import TrainView
 ALEXNET_FILE = "alexnet-owt-7be5be79.pth"  # torchvision's AlexNet ImageNet weights
 LPIPS_FILE = "alex.pth"  # LPIPS v0.1 linear layers for AlexNet
 UNAVAILABLE = "unavailable"
+SLOW_EVALUATION_S = 2.0  # an evaluation running longer says which view it is at (announced)
 
 
 def image_psnr(pred: np.ndarray, gt: np.ndarray) -> float:
@@ -241,6 +243,22 @@ def score_views(
     if net is None:
         out["lpips_reason"] = reason
     return out
+
+
+def announced(
+    render: Callable[[Camera], dict[str, np.ndarray]], say: Callable[[str], None], what: str, n: int
+) -> Callable[[Camera], dict[str, np.ndarray]]:
+    """`render` for an evaluation of `n` views that, once it has taken longer than SLOW_EVALUATION_S, says
+    which view it is at (the paper's NeRF on a CPU: minutes a view)."""
+    t0, done = time.monotonic(), [0]
+
+    def announced_render(camera: Camera) -> dict[str, np.ndarray]:
+        done[0] += 1
+        if time.monotonic() - t0 > SLOW_EVALUATION_S:
+            say(f"{what}: view {done[0]} of {n} ({time.monotonic() - t0:.0f} s so far)")
+        return render(camera)
+
+    return announced_render
 
 
 def images_event(

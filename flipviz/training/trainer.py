@@ -23,6 +23,7 @@ import threading
 import time
 from collections.abc import Callable
 from datetime import datetime
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -40,12 +41,7 @@ from flipviz.training import checkpoint as ckpt
 from flipviz.training import evaluate as ev
 from flipviz.training.artifacts import PLANE_FILE
 from flipviz.training.config import TrainConfig
-from flipviz.training.events import (
-    EndEvent,
-    ImagesEvent,
-    Observer,
-    StepEvent,
-)
+from flipviz.training.events import EndEvent, ImagesEvent, Observer, StepEvent
 from flipviz.training.flip import Action
 from flipviz.training.pose_tuning import eval_renders
 from flipviz.training.setup import (
@@ -60,7 +56,6 @@ from flipviz.training.setup import (
 
 log = logging.getLogger("flipviz.training")
 WARM_UP_SAID = 50  # on_phase hears every this many warm-up steps
-SLOW_EVALUATION_S = 2.0  # an evaluation running longer says which view it is at
 
 
 class NonFiniteLoss(RuntimeError):
@@ -165,18 +160,9 @@ class Trainer:
         return {k: out[k] for k in outputs if k in out}
 
     def _evaluation(self, what: str, n: int) -> Callable[[Camera], dict[str, np.ndarray]]:
-        """`render` for an evaluation of `n` views: a stop ends it within a chunk of rays, and once it has
-        taken longer than SLOW_EVALUATION_S, on_phase hears which view it is at (the paper's NeRF on a CPU:
-        minutes a view)."""
-        t0, done = time.monotonic(), [0]
-
-        def render(camera: Camera) -> dict[str, np.ndarray]:
-            done[0] += 1
-            if time.monotonic() - t0 > SLOW_EVALUATION_S:
-                self._say(f"{what}: view {done[0]} of {n} ({time.monotonic() - t0:.0f} s so far)")
-            return self.render(camera, cancellable=True)
-
-        return render
+        """`render` for an evaluation of `n` views: a stop ends it within a chunk of rays; a slow one says on_phase
+        which view it is at (evaluate.py: announced)."""
+        return ev.announced(partial(self.render, cancellable=True), self._say, what, n)
 
     @torch.no_grad()
     def point_cloud(self, min_alpha: float = 0.05, max_points: int = 150_000) -> dict[str, np.ndarray]:
@@ -231,31 +217,26 @@ class Trainer:
             rs = join_mirrors(self.cfg, self.scene, self.model, self.step)
             self._adopt(rs)
             if rs.start_over:  # a fresh field and sampler from step 0, seeded as B/L's
-                self._restart(0)
+                self._new_field(0)
                 self.step, self.train_seconds = 0, 0.0
         elif action is Action.RESTART_FIELD:
             log.warning("step %d: a fresh field trains the inputs alone (--after-drop restart)", self.step)
-            self._restart(self.step)
+            self._new_field(self.step)
         elif action is Action.ROLL_BACK:  # the run grows by the steps since the join
             log.warning("step %d: the field goes back to step %d, where the mirrors joined", self.step, self.flip.start)
             with signals_deferred():
                 self.opt_field = self._joined.restore(self.model, self._gen)
                 self.field_start = self.step - self._joined.field_step
 
-    def _restart(self, start: int) -> None:
-        """A fresh field, seeded as B/L's, from step `start` for the full cfg.engine.steps (the run then ends
-        as B/L would)."""
-        with signals_deferred():
-            self._new_field(start)
-            self._gen = torch.Generator().manual_seed(self.cfg.engine.seed)
-
     def _new_field(self, start: int) -> None:
-        """A newly initialised field without a variance head (no mirrored ray is trained any more),
-        starting at step `start`, seeded as a run's first field is."""
-        torch.manual_seed(self.cfg.engine.seed)
-        self.model = fresh_model(self.cfg, self.scene, with_beta=False)
-        self.opt_field = self.model.make_optimizer()
-        self.field_start = start
+        """A fresh field without a variance head (no mirrored ray is trained any more) and sampler, from step
+        `start` for the full cfg.engine.steps, seeded as B/L's first ones (the run then ends as B/L would)."""
+        with signals_deferred():
+            torch.manual_seed(self.cfg.engine.seed)
+            self.model = fresh_model(self.cfg, self.scene, with_beta=False)
+            self.opt_field = self.model.make_optimizer()
+            self.field_start = start
+            self._gen = torch.Generator().manual_seed(self.cfg.engine.seed)
 
     # ------------------------------------------------------------------ the loop
     def run(self) -> dict:
@@ -275,11 +256,8 @@ class Trainer:
                 if self.step % cfg.output.log_every == 0 or self.step == self.total_steps:
                     live = self.flip.live()  # the mirrored poses and the plane now
                     self._emit("on_step", StepEvent(self.step, self.total_steps, self.train_seconds, scalars, **live))
-                if (
-                    cfg.output.images_every > 0
-                    and self.step % cfg.output.images_every == 0
-                    and self.step < self.total_steps
-                ):
+                every = cfg.output.images_every
+                if every > 0 and self.step % every == 0 and self.step < self.total_steps:
                     self._emit("on_images", self._images_event())
                     self._say("")  # (what it said of a slow evaluation is over)
                 if cfg.output.checkpoint_every > 0 and self.step % cfg.output.checkpoint_every == 0:
@@ -352,10 +330,9 @@ class Trainer:
     def report(self) -> dict:
         """What a run's metrics say besides its scores: the run and its settings, and Flip's part (its
         mirrors' coverage of the unobserved views, its plane and its mirrored poses)."""
-        settings = self.cfg.to_dict()
-        m = dict(method=self.cfg.method, config=self.split.config, scene=self.scene.name, settings=settings)
-        m["mirror_plane"] = settings["mirror_plane"]
-        return m | self.flip.report([v.camera for v in self.split.tests])
+        s = self.cfg.to_dict()
+        m = dict(method=self.cfg.method, config=self.split.config, scene=self.scene.name, settings=s)
+        return m | {"mirror_plane": s["mirror_plane"]} | self.flip.report([v.camera for v in self.split.tests])
 
     def close(self) -> None:
         """Give the run folder back without training (run() does it when it ends)."""
