@@ -143,3 +143,16 @@ def quiet_app(out, **settings):
 
     base = dict(steps=100_000, no_rrd=True, port=0, images_every=0, checkpoint_every=0, eval_on_stop=False)
     return AppConfig.from_settings(**(base | settings), out=out)
+
+
+MUG_LESSON = dict(  # the mug's configuration 4 mirrored through x = 0 shows its handle where no input saw it
+    res=32,
+    batch_rays=512,
+    log_every=2,
+    view_width=64,
+    mirror_plane="official",
+    uncertainty_start=0.0005,  # the NLL, and the gate, from step 50
+    disagreement_limit=float("inf"),  # no pooled verdict: the mirrors leave one by one
+    mirror_disagreement_limit=2.0,  # low: the gate drops mirrors within a minute or two at 32 px
+    after_drop="continue",
+)

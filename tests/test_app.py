@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 import tyro
-from browser import quiet_app, wait_until
+from browser import MUG_LESSON, quiet_app, wait_until
 from viser_client import ViserTestClient, until
 
 from flipviz.data.cameras import Camera
@@ -348,8 +348,9 @@ def test_mirror_consistency_scores_and_outputs(app):
             last_col = [
                 float(row.split("|")[-2].split()[0]) for row in m["updates"]["_markdown"].split("\n") if "_flip" in row
             ]
-            cams = app.mirror.preview.cams if app.mirror.moved else None
-            assert cams is not None and len(last_col) == len(cams) == 8
+            m = app.mirror  # what it scored: a moved plane's preview (an earlier test's), else BA's poses now
+            cams = m.preview.cams if m.moved else [c.with_pose(T) for c, T in zip(m.mirrors.inputs, m.run.mirror_c2w)]
+            assert len(last_col) == len(cams) == 8
             for cam, gt, got in zip(cams, app.mirror.mirrors.flipped, last_col):
                 rgb = app.render(cam, outputs=("rgb",))["rgb"]
                 mse = np.mean((np.clip(rgb, 0, 1).astype(np.float64) - gt) ** 2)
@@ -875,20 +876,7 @@ def test_the_frustums_and_the_mirror_tab_show_each_mirror_s_verdict(tmp_path):
     dropped view with its step, and its chart has one ratio line per mirror beside the pooled one."""
     from flipviz.viz import palette
 
-    cfg = quiet_app(
-        tmp_path / "run",
-        scene="mug",
-        config=4,
-        res=32,
-        batch_rays=512,
-        log_every=2,
-        view_width=64,
-        mirror_plane="official",
-        uncertainty_start=0.0005,  # the NLL, and the gate, from step 50
-        disagreement_limit=float("inf"),  # no pooled verdict: the mirrors leave one by one
-        mirror_disagreement_limit=2.0,
-        after_drop="continue",
-    )
+    cfg = quiet_app(tmp_path / "run", scene="mug", config=4, **MUG_LESSON)
     a = App(cfg).start()
     try:
         dropped_shown = lambda: any(a.scene.dropped) and "Mirrored views dropped" in a.mirror.curves.verdict.content  # noqa: E731

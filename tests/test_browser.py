@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 import viser
-from browser import CountingProxy, chromium, chromium_available, quiet_app, screenshot_png, wait_until
+from browser import MUG_LESSON, CountingProxy, chromium, chromium_available, quiet_app, screenshot_png, wait_until
 
 from flipviz.viz import palette
 from flipviz.viz.app.app import App, AppConfig
@@ -241,14 +241,19 @@ def live_preview_without_view_renders(app, browser) -> None:
     assert 0 < coloured <= 0.26 * len(app.preview.baked["points"]), (coloured, len(app.preview.baked["points"]))
 
 
-def test_3_snap_to_a_test_view_hides_the_frustums_near_it(app, browser):
+def snap(app, browser, view: str) -> None:
+    """Snap the browser's view to the test view named `view` (e.g. "test 2") from the Views tab."""
     tab(browser, "Views")
-    key = next(k for k in app.snap.views if k.startswith("test 2"))
-    choose(browser, "View", key)
+    choose(browser, "View", next(k for k in app.snap.views if k.startswith(view)))
     button(browser, "Snap to view")
-    wait_until(lambda: app.scene.hidden, 20, what="frustums near the view hidden")
     cid = next(iter(app.views.clients))
-    wait_until(lambda: app.views.clients[cid].snapped is not None, 20, what="the snapped view")
+    now = lambda: app.views.clients[cid].snapped  # noqa: E731
+    wait_until(lambda: now() is not None and now().name.startswith(view), 30, what=f"the snap to {view}")
+
+
+def test_3_snap_to_a_test_view_hides_the_frustums_near_it(app, browser):
+    snap(app, browser, "test 2")
+    wait_until(lambda: app.scene.hidden, 20, what="frustums near the view hidden")
     wait_view(browser, "3_snapped", lambda i: i.std() > 10 and drawn(i) > 0.02)  # (a timeout fails the test)
     wait_until(lambda: "PSNR" in panel_text(browser), 60, what="the snapped view's score in the panel")
 
@@ -259,6 +264,7 @@ def test_3b_click_a_pixel_of_the_snapped_view_to_probe_it(app, browser):
     lands in the view's pixel (H/2, W/2): the browser shows the view at its own vertical field of view."""
     from selenium.webdriver.common.action_chains import ActionChains
 
+    snap(app, browser, "test 2")  # (test_3 left it there; alone, this test snaps)
     cid = next(iter(app.views.clients))
     cam = app.views.clients[cid].snapped.camera
     el = canvas_element(browser)
@@ -274,13 +280,7 @@ def test_3b_click_a_pixel_of_the_snapped_view_to_probe_it(app, browser):
     img = shot(browser, "3b_probe").astype(int)  # the cyan marker at the click
     assert cyan_near_centre(img, browser) >= 4, "no probe marker drawn at the click"
     # issue 45 item 7: snapped to another view, the reading and its marker go (the dot sat on the object)
-    choose(browser, "View", next(k for k in app.snap.views if k.startswith("test 5")))
-    button(browser, "Snap to view")
-    wait_until(
-        lambda: app.views.clients[cid].snapped is not None and app.views.clients[cid].snapped.name.startswith("test 5"),
-        30,
-        what="the other view",
-    )
+    snap(app, browser, "test 5")
     wait_until(lambda: "Pixel (" not in panel_text(browser), 30, what="the reading gone from the panel")
     wait_until(lambda: cyan_near_centre(shot(browser, "3b_probe_gone").astype(int), browser) == 0, 30, what="no marker")
 
@@ -294,6 +294,7 @@ def cyan_near_centre(img: np.ndarray, d) -> int:
 
 
 def test_4_beta2_with_its_colour_bar(app, browser):
+    snap(app, browser, "test 5")  # (test_3b left it there; alone, this test snaps)
     tab(browser, "Train")
     checkbox(browser, "Render my view", True)  # whatever an earlier test left: this one reads the rendered view
     choose(browser, "Snapped view shows", "beta^2")
@@ -669,3 +670,35 @@ def test_11_the_mirror_tab_charts_span_their_data(browser, tmp_path_factory):
             print(browser.execute_script(spans))
     finally:
         a.stop()
+
+
+def test_12_the_mug_lesson_is_one_click_from_restart(browser, tmp_path_factory):
+    """Issue 45 item 3: *Show the mirrors anyway* existed only for a doubted plane (--unconfident-plane drop,
+    which Restart cannot set), so the mug's lesson could not be reached from Restart -> mug. Restarted to the
+    mug from the Train tab, a run whose gate drops mirrored views offers it; one click draws the dropped ones,
+    and the scores' table names each with the step it was dropped at."""
+    cfg = quiet_app(tmp_path_factory.mktemp("lesson") / "run", scene="chair", method="bl", **MUG_LESSON)
+    lesson = App(cfg).start()
+    try:
+        wait_until(lambda: lesson.setup is not None and lesson.step > 5, 180, what="the chair's B/L run")
+        browser.get(f"http://127.0.0.1:{lesson.port}")
+        wait_until(lambda: browser.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        tab(browser, "Train")
+        choose(browser, "Scene", "mug")
+        choose(browser, "Method", "flip+u")
+        choose(browser, "Configuration", "4")
+        button(browser, "Restart training")
+        button(browser, "Replace the run")
+        on_mug = lambda: lesson.setup is not None and lesson.setup.scene == "mug" and lesson.setup.config == 4  # noqa: E731
+        wait_until(lambda: on_mug() and any(lesson.scene.dropped), 600, what="the gate dropping a mug mirror")
+        button(browser, "Pause")  # no more drops while the page is read
+        wait_until(lambda: lesson.status == "paused", 30, what="the pause")
+        dropped = [n for n, gone in zip(lesson.mirror.curves.names, lesson.scene.dropped) if gone]
+        tab(browser, "Mirror")
+        button(browser, "Show the mirrors anyway (not trained on)")
+        wait_until(lambda: "(dropped at" in panel_text(browser), 120, what="the scores' table naming the drops")
+        shot(browser, "12_lesson")
+        text = panel_text(browser)
+        assert all(f"{n}_flip (dropped at" in text for n in dropped), (dropped, text)
+    finally:
+        lesson.stop()
