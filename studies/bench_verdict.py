@@ -47,6 +47,11 @@ VARIANTS: dict[str, dict] = {
     "each over 3.25, rollback": limits(INF, 3.25, "rollback"),
     "pooled + each over 6, restart": limits(3.25, 6.0, "restart"),
     "pooled + each over 6, rollback": limits(3.25, 6.0, "rollback"),
+    # 4.0: chair configuration 7's mirror behind the chair's back peaked at 4.21 on its training batches, its
+    # other mirrors at 2.42 or less (studies/bench_agreement.py); the lamp's and the truck's highest (4.78, 5.25)
+    # would go too: the held-out views say whether that costs them
+    "pooled + each over 4, restart": limits(3.25, 4.0, "restart"),
+    "pooled + each over 4, rollback": limits(3.25, 4.0, "rollback"),
 }
 
 
