@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from browser import wait_until
 from test_rerun import read_rrd, rows_by_step
 
 from flipviz import cli
@@ -969,10 +970,12 @@ def wait_served(p: subprocess.Popen) -> str:
 
 def wait_checkpointed(p: subprocess.Popen, run_dir: Path) -> None:
     """Until the app's run has written its first periodic checkpoint (training runs); fails if it exits."""
-    t_end = time.monotonic() + 300
-    while not (run_dir / "checkpoint.pt").exists():
-        assert time.monotonic() < t_end and p.poll() is None, "training did not start"
-        time.sleep(0.2)
+
+    def checkpointed() -> bool:
+        assert p.poll() is None, "the app exited before training started"
+        return (run_dir / "checkpoint.pt").exists()
+
+    wait_until(checkpointed, 300, every=0.2, what="the app's first checkpoint (training did not start)")
 
 
 @pytest.mark.slow
