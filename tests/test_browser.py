@@ -30,6 +30,12 @@ pytestmark = [
 ]
 
 
+def open_page(d, port: int) -> None:
+    """Load the app served on `port` and wait until its 3D canvas is drawn."""
+    d.get(f"http://127.0.0.1:{port}")
+    wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+
+
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     cfg = AppConfig.from_settings(
@@ -64,8 +70,7 @@ def app(tmp_path_factory):
 @pytest.fixture(scope="module")
 def browser(app):
     with chromium() as d:
-        d.get(f"http://127.0.0.1:{app.port}")
-        wait_until(lambda: d.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        open_page(d, app.port)
         yield d
 
 
@@ -567,8 +572,7 @@ def test_9_a_paused_app_goes_quiet_in_the_browser(app, browser):
     """Issue 26 item 1: paused and settled, the page receives next to nothing (the server re-sent the
     mirrors' poses, the BA trajectories and the plot every half second: 37 kB/s on the chair)."""
     with CountingProxy(app.port) as proxy:  # the page loaded through a relay that counts what it receives
-        browser.get(f"http://127.0.0.1:{proxy.port}")
-        wait_until(lambda: browser.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        open_page(browser, proxy.port)
         assert app.scene.mirror_handles  # a run with mirrors (the mug's Flip+U): their poses were the traffic
         tab(browser, "Train")
         button(browser, "Pause")
@@ -603,8 +607,7 @@ def test_10_show_the_mirrors_of_a_doubted_plane_anyway(browser, tmp_path_factory
     try:
         wait_until(lambda: doubted.setup is not None and doubted.step > 5, 180, what="the doubted run")
         assert doubted.setup.plane is None and doubted.setup.plane_estimate is not None  # dropped
-        browser.get(f"http://127.0.0.1:{doubted.port}")
-        wait_until(lambda: browser.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        open_page(browser, doubted.port)
         tab(browser, "Mirror")
         wait_until(lambda: "not confident" in panel_text(browser), 60, what="the doubted plane's note")
 
@@ -642,8 +645,7 @@ def test_11_the_mirror_tab_charts_span_their_data(browser, tmp_path_factory):
     a = App(cfg).start()
     try:
         wait_until(lambda: a.mirror.curves.agreement is not None and a.mirror.curves.agreement.visible, 300)
-        browser.get(f"http://127.0.0.1:{a.port}")
-        wait_until(lambda: browser.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        open_page(browser, a.port)
         tab(browser, "Mirror")  # open while 40 points of each curve come in (the README's screenshot: no line)
         wait_until(lambda: len(a.mirror.curves.agreement.data[0]) >= 40, 300, what="40 points of agreement")
         spans = """return Object.values(window.__viserTestpoints.uplots || {}).map(t => {
@@ -681,8 +683,7 @@ def test_12_the_mug_lesson_is_one_click_from_restart(browser, tmp_path_factory):
     lesson = App(cfg).start()
     try:
         wait_until(lambda: lesson.setup is not None and lesson.step > 5, 180, what="the chair's B/L run")
-        browser.get(f"http://127.0.0.1:{lesson.port}")
-        wait_until(lambda: browser.find_elements("xpath", "//canvas"), 60, what="the 3D canvas")
+        open_page(browser, lesson.port)
         tab(browser, "Train")
         choose(browser, "Scene", "mug")
         choose(browser, "Method", "flip+u")
