@@ -36,27 +36,25 @@ class Args:
     out: Path = ROOT / "docs/results/agreement/limits.md"
 
 
-def runs(root: Path, folders: str, scene: str, method: str) -> dict[int, dict] | None:
-    """The runs of one method of the first of `folders` ('a|b') that holds a finished bench of `scene`
-    (its results.csv), by configuration; None when none does."""
+def runs(root: Path, folders: str, scene: str, method: str) -> tuple[str, dict[int, dict]] | None:
+    """The first of `folders` ('a|b') that holds a finished bench of `scene` (its results.csv), with its
+    runs of one method by configuration; None when none does."""
     for folder in folders.format(scene=scene).split("|"):
         table = root / folder / "results.csv"
         rows = [r for r in csv.DictReader(table.open()) if r["scene"] == scene] if table.is_file() else []
         if rows:
-            return {
-                int(r["config"]): r | {"folder": folder} for r in rows if r["status"] == "ok" and r["method"] == method
-            }
+            return folder, {int(r["config"]): r for r in rows if r["status"] == "ok" and r["method"] == method}
     return None
 
 
-def cell(flip: dict | None, bl: dict | None) -> tuple[str, float | None]:
-    """One configuration's cell: gain, mirrors kept, and wall time over B/L's where both ran in one bench
-    (in separate benches the machine's load differed)."""
+def cell(flip: dict | None, bl: dict | None, one_bench: bool) -> tuple[str, float | None]:
+    """One configuration's cell: gain, mirrors kept, and wall time over B/L's when both ran in one bench
+    (`one_bench`; in separate benches the machine's load differed)."""
     if flip is None or bl is None:
         return "not run", None
     gain = float(flip["psnr"]) - float(bl["psnr"])
     cost = float(flip["wall_seconds"]) / float(bl["wall_seconds"])
-    time = f", {cost:.2f}x" if flip["folder"] == bl["folder"] else ""
+    time = f", {cost:.2f}x" if one_bench else ""
     return f"{gain:+.2f}, {flip['kept_mirrors']}/{flip['n_mirrors']}{time}", gain
 
 
@@ -73,12 +71,13 @@ def main(args: Args) -> None:
         "|---|---|" + "---|" * 10,
     ]
     for scene in args.scenes.split(","):
-        bl = runs(args.root, args.baseline, scene, "bl") or {}
+        bl_folder, bl = runs(args.root, args.baseline, scene, "bl") or (None, {})
         for name, folders in variants.items():
-            flip = runs(args.root, folders, scene, "flip+u")
-            if flip is None:
+            found = runs(args.root, folders, scene, "flip+u")
+            if found is None:
                 continue
-            cells = [cell(flip.get(c), bl.get(c)) for c in range(1, 9)]
+            folder, flip = found
+            cells = [cell(flip.get(c), bl.get(c), folder == bl_folder) for c in range(1, 9)]
             gains = [g for _, g in cells if g is not None]
             summary = f"{np.mean(gains):+.2f} | {min(gains):+.2f}" if len(gains) == 8 else f"{len(gains)}/8 run | "
             lines.append(f"| {scene} | {name} | " + " | ".join(text for text, _ in cells) + f" | {summary} |")
