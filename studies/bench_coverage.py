@@ -11,7 +11,6 @@ runs carry the same columns themselves (table.md, gain_vs_coverage.png).
 
 from __future__ import annotations
 
-import csv
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,7 @@ import numpy as np
 import tyro
 
 from flipviz.bench.figures import gain_chart
-from flipviz.bench.tables import gain
+from flipviz.bench.tables import gain, read_table
 from flipviz.data import load_scene
 from flipviz.data.protocol import make_split
 from flipviz.files import write_text
@@ -43,7 +42,7 @@ class Args:
 def rows_with_coverage(table: str, plane: str, pose: str) -> list[dict]:
     """The table's main runs (no ablation rows), each with its configuration's coverage."""
     rows = []
-    for r in csv.DictReader((ROOT / "docs/results" / table / "results.csv").open()):
+    for r in read_table(ROOT / "docs/results" / table):
         if r["status"] != "ok" or (r["method"] == "flip+u" and r["ba"] != "True"):
             continue
         rows.append(

@@ -17,7 +17,6 @@ picks a setting: the plane's learning rate and BA's start were chosen on held-ou
 
 from __future__ import annotations
 
-import csv
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ import tyro
 
 from flipviz.bench.config import BenchConfig
 from flipviz.bench.runner import run_bench
+from flipviz.bench.tables import read_table
 from flipviz.files import write_text
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,7 +44,7 @@ class Args:
 
 
 def rows(folder: Path) -> list[dict]:
-    return [r for r in csv.DictReader((folder / "results.csv").open()) if r["status"] == "ok"]
+    return [r for r in read_table(folder) if r["status"] == "ok"]
 
 
 def num(r: dict, key: str) -> float | None:

@@ -12,13 +12,13 @@ Flip+U's wall time over B/L's where both ran in one bench (rough: the runs share
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import tyro
 
+from flipviz.bench.tables import read_table
 from flipviz.files import write_text
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,8 +40,7 @@ def runs(root: Path, folders: str, scene: str, method: str) -> tuple[str, dict[i
     """The first of `folders` ('a|b') that holds a finished bench of `scene` (its results.csv), with its
     runs of one method by configuration; None when none does."""
     for folder in folders.format(scene=scene).split("|"):
-        table = root / folder / "results.csv"
-        rows = [r for r in csv.DictReader(table.open()) if r["scene"] == scene] if table.is_file() else []
+        rows = [r for r in read_table(root / folder) if r["scene"] == scene]
         if rows:
             return folder, {int(r["config"]): r for r in rows if r["status"] == "ok" and r["method"] == method}
     return None

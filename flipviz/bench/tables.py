@@ -394,6 +394,13 @@ def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:
     return "\n".join(parts)
 
 
+def read_table(out: Path) -> list[dict]:
+    """The rows of a bench's results.csv (`write_reports`), each value the string written; [] when the bench
+    wrote none."""
+    table = Path(out) / "results.csv"
+    return list(csv.DictReader(io.StringIO(table.read_text()))) if table.is_file() else []
+
+
 def write_reports(out: Path, rows: list[dict], cfg: BenchConfig) -> None:
     """results.csv, results.json and table.md in `out`, each written atomically."""
     flat = [flat_row(r) for r in rows]
