@@ -550,3 +550,39 @@ def test_ablation_table_rows() -> None:
         ["| ✓", "✓", "14.00"],
     ]
     assert "16.636" in lines[0] and "17.620" in lines[3]  # the paper's Table II beside ours
+
+
+def test_a_resumed_runs_wall_time_counts_its_earlier_attempts(tmp_path: Path) -> None:
+    """A run stopped (or killed) and resumed from its checkpoint reports the wall time of every attempt up to
+    that checkpoint, not only the last attempt's (the NeRF Flip+U had shown 5148 s for 10 918 s of training)."""
+    from flipviz.bench.results import STARTED_FILE
+    from flipviz.bench.task import RunTask, earlier_wall_seconds, execute_run
+    from flipviz.training.config import TrainConfig
+    from flipviz.training.events import Observer
+    from flipviz.training.run import make_trainer
+
+    run_dir = tmp_path / "run"
+    cfg = TrainConfig.from_settings(
+        scene="chair", method="bl", res=16, steps=20, batch_rays=64, grid_res=(16,), no_rrd=True, out=run_dir
+    )
+    (run_dir / STARTED_FILE).parent.mkdir(parents=True)
+    (run_dir / STARTED_FILE).write_text(json.dumps({"started": time.time() - 100.0}))
+    assert earlier_wall_seconds(run_dir) == 0.0  # an attempt that left no checkpoint owes nothing
+
+    trainer = make_trainer(cfg)
+
+    class StopAt10(Observer):
+        def on_step(self, e) -> None:
+            if e.step >= 10:
+                trainer.stop()
+
+    trainer.add_observer(StopAt10())
+    trainer.run()  # stopped at step 10, its checkpoint written
+    now = time.time()
+    (run_dir / STARTED_FILE).write_text(json.dumps({"started": now - 100.0, "earlier_wall_seconds": 50.0}))
+    os.utime(run_dir / "checkpoint.pt", (now - 40.0, now - 40.0))  # the last attempt: 60 s to its checkpoint
+    assert earlier_wall_seconds(run_dir) == pytest.approx(110.0, abs=1.0)
+    result = execute_run(RunTask("k", str(run_dir), cfg.to_dict(), {"scene": "chair", "method": "bl"}, progress=False))
+    assert result["status"] == "ok" and result["resumed_from_step"] == 10, result
+    assert result["earlier_wall_seconds"] == pytest.approx(110.0, abs=1.0)
+    assert result["wall_seconds"] >= 110.0 + (result["finished"] - result["started"]) - 1e-6

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import threading
@@ -12,7 +11,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
-from flipviz.bench.results import RESULT_FILE, STARTED_FILE
+from flipviz.bench.results import RESULT_FILE, STARTED_FILE, read_json
 from flipviz.bench.task import RunTask, died_result, execute_run
 from flipviz.errors import Interrupted
 
@@ -154,8 +153,8 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
                 proc.join()
         todo = []
         for t in broken:
-            res = _read_json(Path(t.run_dir) / RESULT_FILE)
-            started = _read_json(Path(t.run_dir) / STARTED_FILE)
+            res = read_json(Path(t.run_dir) / RESULT_FILE)
+            started = read_json(Path(t.run_dir) / STARTED_FILE)
             if res.get("finished", 0) >= round_start:  # finished just before the pool broke
                 on_result(res)
             elif started.get("started", 0) >= round_start and _died(workers_seen.get(started.get("pid"))):
@@ -171,10 +170,3 @@ def _died(proc) -> bool:
     A worker the broken pool stopped with SIGTERM stopped its run gracefully, keeping its checkpoint
     (_stop_training), and exited with a code of its own. Unknown (no such worker): died."""
     return proc is None or proc.exitcode is None or proc.exitcode < 0
-
-
-def _read_json(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}

@@ -15,12 +15,18 @@ STARTED_FILE = "started.json"
 ABLATION = ((False, False), (True, False), (False, True), (True, True))  # (BA, U), Table II order
 
 
+def read_json(path: Path) -> dict:
+    """A run's JSON file (result.json, started.json) as a dict; {} when it is missing or unreadable."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
 def read_result(run_dir: Path) -> dict | None:
     """The run's result.json, or None when it has none (not run, killed, or unreadable)."""
-    try:
-        return json.loads((Path(run_dir) / RESULT_FILE).read_text())
-    except (OSError, ValueError):
-        return None
+    return read_json(Path(run_dir) / RESULT_FILE) or None
 
 
 def ok_rows(rows: list[dict]) -> list[dict]:

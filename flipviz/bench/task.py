@@ -7,6 +7,7 @@ crash never stops the other runs. Where tasks run: `local.py` (processes), `ray_
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import shutil
@@ -17,7 +18,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from flipviz.bench.results import RESULT_FILE, STARTED_FILE, read_result
+from flipviz.bench.results import RESULT_FILE, STARTED_FILE, read_json, read_result
 from flipviz.files import write_json
 from flipviz.training.checkpoint import CHECKPOINT_NAME
 
@@ -99,10 +100,14 @@ def execute_run(task: RunTask | dict) -> dict:
 
         run_dir = Path(tempfile.mkdtemp(prefix=f"flipviz-{task.key}-"))
         task.train = task.train | {"out": str(run_dir)}
+    earlier = earlier_wall_seconds(run_dir)  # (read before this attempt's started.json replaces the last one's)
     started = time.time()
     run_id = uuid.uuid4().hex
     host = os.uname().nodename
-    write_json(run_dir / STARTED_FILE, {"run_id": run_id, "started": started, "pid": os.getpid(), "host": host})
+    write_json(
+        run_dir / STARTED_FILE,
+        {"run_id": run_id, "started": started, "pid": os.getpid(), "host": host, "earlier_wall_seconds": earlier},
+    )
     result = {
         "key": task.key,
         "run_id": run_id,
@@ -158,7 +163,9 @@ def execute_run(task: RunTask | dict) -> dict:
         result["error"] = msg[0] if msg else type(e).__name__
         (run_dir / "error.txt").write_text(traceback.format_exc())
     result["finished"] = time.time()
-    result["wall_seconds"] = result["finished"] - started  # incl. scene loading and evaluation
+    earlier = earlier if result.get("resumed_from_step") else 0.0  # a fresh start owes the earlier attempts nothing
+    result["wall_seconds"] = result["finished"] - started + earlier  # incl. scene loading and evaluation
+    result["earlier_wall_seconds"] = earlier
     result.setdefault("versions", {})
     write_json(run_dir / RESULT_FILE, result)
     if not task.keep_checkpoint and result["status"] == "ok":
@@ -166,6 +173,19 @@ def execute_run(task: RunTask | dict) -> dict:
     if task.ship_files:
         result["_files"] = _collect_files(run_dir)
     return result
+
+
+def earlier_wall_seconds(run_dir: Path) -> float:
+    """The wall time the earlier attempts of a run spent on what its checkpoint holds (a stopped or killed run
+    resumes from there): the last attempt from its start to the checkpoint it left, plus the ones before it.
+    What an attempt trained after its last checkpoint is trained again, and counted then."""
+    ckpt = run_dir / CHECKPOINT_NAME
+    last = read_json(run_dir / STARTED_FILE) if ckpt.is_file() else {}
+    if not isinstance(last.get("started"), (int, float)):
+        return 0.0
+    before = last.get("earlier_wall_seconds", 0.0)
+    before = float(before) if isinstance(before, (int, float)) and math.isfinite(before) else 0.0
+    return before + max(0.0, ckpt.stat().st_mtime - float(last["started"]))
 
 
 def _finished_twin(task: RunTask, trainer) -> dict | None:
