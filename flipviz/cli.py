@@ -122,9 +122,9 @@ def _run_train(cfg: TrainConfig) -> int:
             lp = metrics.get("lpips")
             lp_s = f"{lp:.3f}" if isinstance(lp, float) else f"{lp} ({metrics.get('lpips_reason', '')})"
             print(
-                f"[flipviz] {metrics['status']}: unobserved views PSNR {metrics['psnr']:.2f} dB, "
+                f"[flipviz] {metrics['status']}: PSNR {metrics['psnr']:.2f} dB, "
                 f"SSIM {metrics['ssim']:.3f}, LPIPS {lp_s}, "
-                f"{metrics.get('train_seconds', 0):.0f} s, {metrics['steps']} steps"
+                f"{metrics.get('train_seconds', 0):.0f} s, {metrics['steps']} steps; scored in {cfg.eval.words()}"
             )
             if "iou" in metrics:
                 depth = f", depth error {metrics['depth_abs']:.3f}" if "depth_abs" in metrics else ""

@@ -4,6 +4,7 @@
 
 1. app.png: the chair training (Flip+U), your view rendered at the canvas size;
 2. app_snapped.png: snapped to an unobserved test view, ground truth and render blended half-half;
+   app_scoring.png: Restart in the authors' setting and scoring asks first (the protocol, its cost);
    app_restart.png: Restart -> mug asks first (which run it replaces, where its checkpoint stays);
 3. app_mirror.png: the mug with --unconfident-plane drop (its doubted plane's mirrors are not trained:
    "Show the mirrors anyway" draws them), its mirrored frustums coloured by their scores and showing
@@ -39,7 +40,7 @@ import tyro
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "studies")]
 from browser import chromium, screenshot_png, wait_until  # noqa: E402
-from test_browser import button, canvas_element, checkbox, choose, tab  # noqa: E402
+from test_browser import button, canvas_element, checkbox, choose, modal_open, tab  # noqa: E402
 
 from flipviz.viz.app.app import App, AppConfig, check_run_input  # noqa: E402
 
@@ -50,9 +51,9 @@ class Args:
     steps_before: int = 700
     """Training steps before the first screenshot."""
     shots: str = "orbit,capture,compare,plane,fog,probe,agreement"
-    """orbit: app.png, app_snapped.png, app_restart.png, app_mirror.png; capture: app_capture.png; compare:
-    app_compare.png; plane: app_plane.png; fog: app_fog.png; probe: app_probe.png, app_curves.png; agreement:
-    app_agreement.png."""
+    """orbit: app.png, app_snapped.png, app_scoring.png, app_restart.png, app_mirror.png; capture:
+    app_capture.png; compare: app_compare.png; plane: app_plane.png; fog: app_fog.png; probe: app_probe.png,
+    app_curves.png; agreement: app_agreement.png."""
 
 
 def main(args: Args) -> None:
@@ -283,6 +284,15 @@ def orbit_shots(args: Args) -> None:
             v.gui["blend"].value = 0.5
         time.sleep(4.0)
         (args.out / "app_snapped.png").write_bytes(screenshot_png(d))
+        choose(d, "Setting", "authors")
+        choose(d, "Scoring", "authors, every 4th view")
+        button(d, "Restart training")
+        wait_until(lambda: "Scored in the authors" in d.page_source, 30, what="the question naming the scoring")
+        time.sleep(1.0)  # (the modal's fade-in)
+        (args.out / "app_scoring.png").write_bytes(screenshot_png(d))
+        button(d, "Keep this run")
+        wait_until(lambda: not modal_open(d), 30, what="the question closed")
+        choose(d, "Setting", "fast")
         choose(d, "Scene", "mug")
         button(d, "Restart training")
         wait_until(lambda: "Replace this run" in d.page_source, 30, what="the question before a restart")

@@ -9,6 +9,7 @@ import runpy
 import sys
 import threading
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import cv2
@@ -22,7 +23,7 @@ from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
 from flipviz.geometry import mirror_cameras_for_plane
 from flipviz.geometry.sphere import Sphere
-from flipviz.training.config import TrainConfig
+from flipviz.training.config import EvalConfig, TrainConfig
 from flipviz.viz.app.app import App, AppConfig
 from flipviz.viz.app.poses import (
     c2w_from_viser,
@@ -33,7 +34,7 @@ from flipviz.viz.app.poses import (
     to_viser_pose,
 )
 from flipviz.viz.app.session import train_config
-from flipviz.viz.app.train import Pace, step_text
+from flipviz.viz.app.train import Pace, run_choice, scoring_settings, step_text
 from flipviz.viz.images import upscale, visualize_output
 
 pytestmark = pytest.mark.slow
@@ -949,7 +950,14 @@ def test_restart_with_another_method(app):
             await c.wait_gui("Restart training")
             await c.set_value("Method", "bl")
             await c.set_value("Setting", "authors")
-            await until(lambda: (app.train.method_dd.value, app.train.setting_dd.value) == ("bl", "authors"), "form")
+            await c.set_value("Scoring", SAMPLE)  # issue 40: the authors' scoring, offered with their setting
+            await until(
+                lambda: (
+                    (app.train.method_dd.value, app.train.setting_dd.value, app.train.scoring_dd.value)
+                    == ("bl", "authors", SAMPLE)
+                ),
+                "form",
+            )
             await c.click("Restart training")  # issue 45: asked first; kept, nothing restarts
             ask = await c.wait_for(lambda m: m["type"] == "GuiModalMessage")
             await c.wait_gui("Keep this run")
@@ -972,6 +980,7 @@ def test_restart_with_another_method(app):
             await until(lambda: app.compare.b is not None, lambda: app.compare.status_md.content, timeout=60)
             return question
 
+    SAMPLE = "authors, every 4th view"
     old, first_dir = app.setup, app.session.run_dir()
     try:
         question = run(go())
@@ -980,6 +989,16 @@ def test_restart_with_another_method(app):
         app.compare.stop()
     assert app.setup is not old and app.cfg.method == "bl" and app.restarts == 1
     assert "Replace this run" in question and str(first_dir) in question and "Compare with the previous run" in question
+    assert "Scored in the authors' protocol (every 4th of the orbit views" in question, question  # labelled, costed
+    assert "23 views on a built-in scene" in question, question
+    tuned = EvalConfig("orbit", 100, 4)
+    assert app.cfg.eval == tuned and app.trainer.cfg.eval == tuned  # the run is scored as the form said
+    assert app.train.scoring_dd.value == SAMPLE and not app.train.scoring_dd.disabled  # and the form shows it
+    assert run_choice(app.trainer.cfg, app.train.scorings).scoring == SAMPLE
+    app.train.setting_dd.value = "fast"  # flipviz's own setting is never tuned on the test images
+    assert app.train.scoring_dd.value == "flipviz" and app.train.scoring_dd.disabled
+    assert scoring_settings(app.train.choice(), app.train.scorings) == asdict(EvalConfig())
+    app.train.setting_dd.value = "authors"
     from flipviz.training.config import with_preset
 
     paper = app.restart_question(with_preset(app.cfg, "paper"))  # on this CPU: said before it starts
@@ -1449,3 +1468,27 @@ def test_beta2_in_3d_colours_the_doubted_cells_over_the_object_in_grey():
     assert np.all(grey == np.float32(SHAPE_OPACITY)) and np.all(splats.rgbs[:500] == 190)
     assert np.allclose(ghost, 1.0) and np.allclose(splats.centers[500:], baked["points"][900:950])
     assert "top 25%" in label
+
+
+def test_a_finished_run_names_the_protocol_it_was_scored_in(tmp_path):
+    """Issue 40: the Train tab's last line says which protocol the final PSNR is in; the authors' scoring
+    (the orbit, each pose tuned on its ground truth) is never shown as flipviz's unobserved views."""
+    from flipviz.viz.app.session import TrainingSession
+
+    scored = {}
+    for name, tune in (("flipviz", 0), ("authors", 2)):
+        cfg = TrainConfig.from_settings(
+            scene="chair", res=16, steps=4, batch_rays=64, method="bl", no_rrd=True, out=tmp_path / name
+        )
+        if tune:
+            cfg = cfg.with_settings(eval_views="orbit", eval_tune_steps=tune, eval_every=46)  # 2 of the 92 views
+        session = TrainingSession(cfg, [])
+        session.start()
+        wait_until(lambda s=session: s.status in ("finished", "error"), 300, what=f"the {name} run to finish")
+        scored[name] = session.message
+        session.stop()
+    assert scored["flipviz"].startswith("PSNR ") and scored["flipviz"].endswith(
+        "dB in flipviz's protocol (the 8 unobserved views, at their poses)"
+    ), scored
+    authors = "the authors' protocol (every 46th of the orbit views a run did not train on, each pose tuned 2 steps"
+    assert f"dB in {authors}" in scored["authors"], scored

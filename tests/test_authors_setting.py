@@ -270,7 +270,8 @@ def test_the_bench_table_names_the_protocol_its_runs_were_scored_in():
     import dataclasses
 
     from flipviz.bench.config import BenchConfig
-    from flipviz.bench.tables import ordinal, protocol_words
+    from flipviz.bench.tables import protocol_words
+    from flipviz.training.config import ordinal
 
     cfg = BenchConfig()
     assert protocol_words(cfg) == "flipviz's protocol (the 8 unobserved views, at their poses)"

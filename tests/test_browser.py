@@ -537,7 +537,17 @@ def test_7_restart_with_bl(app, browser):
     wait_until(lambda: not modal_open(browser), 30, what="the question closed")
     wait_until(lambda: app.step > step + 5, 120, what="the kept run training on")
     assert app.trainer.run_dir == run_dir and app.cfg.preset == "fast"
+    # issue 40 item 4: the authors' setting offers their scoring, labelled and costed before it starts
+    choose(browser, "Setting", "authors")
+    choose(browser, "Scoring", "authors, every 4th view")
+    button(browser, "Restart training")
+    wait_until(lambda: "Scored in the authors' protocol" in panel_text(browser), 20, what="the authors' scoring")
+    shot(browser, "7_ask_authors")
+    button(browser, "Keep this run")
+    wait_until(lambda: not modal_open(browser), 30, what="the question closed")
+    assert app.trainer.run_dir == run_dir and app.cfg.eval.eval_tune_steps == 0
     choose(browser, "Setting", "fast")
+    assert app.train.scoring_dd.value == "flipviz"  # flipviz's setting is scored in flipviz's protocol
     choose(browser, "Method", "bl")
     button(browser, "Restart training")
     wait_until(lambda: "Replace this run" in browser.page_source, 20, what="the question before a restart")

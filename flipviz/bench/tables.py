@@ -12,6 +12,7 @@ from flipviz.bench.config import BenchConfig, parse_configs, parse_methods
 from flipviz.bench.paper_numbers import METHOD_LABELS, METHOD_ORDER, TABLE2, TABLE3
 from flipviz.bench.results import ABLATION, ablation_rows, main_rows, ok_rows, paper_scene, scenes
 from flipviz.files import write_json, write_text
+from flipviz.training.config import EvalConfig
 
 CSV_FIELDS = (
     "scene",
@@ -323,22 +324,9 @@ def time_table(rows: list[dict], methods: list[str]) -> str:
     return "\n".join(lines)
 
 
-def ordinal(n: int) -> str:
-    """2nd, 3rd, 4th, 11th, 21st: the English ordinal of n."""
-    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
-    return f"{n}{suffix}"
-
-
 def protocol_words(cfg: BenchConfig) -> str:
     """The protocol a bench's runs were scored in, as its tables name it (training/config.py: EvalConfig)."""
-    every = f"every {ordinal(cfg.eval_every)} of " if cfg.eval_every > 1 else ""  # --eval-every n: a sample
-    if cfg.eval_views == "unobserved":
-        views = f"{every}the 8 unobserved views"
-    else:
-        views = f"{every}the orbit views a run did not train on" if every else "every orbit view a run did not train on"
-    if cfg.eval_tune_steps == 0:
-        return f"flipviz's protocol ({views}, at their poses)" if cfg.eval_views == "unobserved" else views
-    return f"the authors' protocol ({views}, each pose tuned {cfg.eval_tune_steps} steps on its ground truth)"
+    return EvalConfig(cfg.eval_views, cfg.eval_tune_steps, cfg.eval_every).words()
 
 
 def render_markdown(rows: list[dict], cfg: BenchConfig) -> str:

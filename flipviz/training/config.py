@@ -231,6 +231,25 @@ class EvalConfig:
     """Score every n-th of those views (1: all). Tuning 192 lego views takes 10-20 min on one CPU thread:
     the budget study scores every 4th (studies/study_table3.py)."""
 
+    def words(self) -> str:
+        """The protocol these settings score in, as every table and status line names it."""
+        every = f"every {ordinal(self.eval_every)} of " if self.eval_every > 1 else ""  # --eval-every n: a sample
+        if self.eval_views == "unobserved":
+            views = f"{every}the 8 unobserved views"
+        elif every:
+            views = f"{every}the orbit views a run did not train on"
+        else:
+            views = "every orbit view a run did not train on"
+        if self.eval_tune_steps == 0:
+            return f"flipviz's protocol ({views}, at their poses)" if self.eval_views == "unobserved" else views
+        return f"the authors' protocol ({views}, each pose tuned {self.eval_tune_steps} steps on its ground truth)"
+
+
+def ordinal(n: int) -> str:
+    """2nd, 3rd, 4th, 11th, 21st: the English ordinal of n."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
+
 
 @dataclass
 class OutputConfig:

@@ -53,7 +53,7 @@ from flipviz.viz.app.probe import PixelProbe
 from flipviz.viz.app.render import RenderWorker, ViewportRenderer
 from flipviz.viz.app.scene import GROUPS, RunScene
 from flipviz.viz.app.session import TrainingSession
-from flipviz.viz.app.train import RunChoice, TrainPanel, fmt_time
+from flipviz.viz.app.train import TUNED_VIEW_S, RunChoice, TrainPanel, fmt_time, run_choice, scoring_settings, scorings
 from flipviz.viz.run_events import RunEvents
 
 log = logging.getLogger("flipviz.app")
@@ -183,7 +183,8 @@ class App:
         gui.main_panel.dock_right()  # beside the 3D view, not over it: the whole canvas is seen (side by side's B)
         tabs = gui.add_tab_group()
         with tabs.add_tab("Train", viser.Icon.PLAYER_PLAY) as train_tab:
-            self.train = TrainPanel(self.server, self.pause, self.resume, self.restart_with, tab=train_tab)
+            choices = scorings(self._first.eval)  # flipviz's, the authors', and the command line's own
+            self.train = TrainPanel(self.server, self.pause, self.resume, self.restart_with, train_tab, choices)
             self.your_view = gui.add_folder("Your view")
         with tabs.add_tab("Views", viser.Icon.CAMERA):
             with gui.add_folder("Snap to view"):
@@ -351,7 +352,12 @@ class App:
             return
         scene = choice.scene if choice.scene is not None else self.cfg.data.scene
         cfg = with_preset(self.cfg, choice.preset).with_settings(
-            scene=scene, data=data, method=choice.method, config=choice.config, steps=choice.steps
+            scene=scene,
+            data=data,
+            method=choice.method,
+            config=choice.config,
+            steps=choice.steps,
+            **scoring_settings(choice, self.train.scorings),
         )
         question = self.restart_question(cfg)
         if client is None or question is None:
@@ -384,6 +390,13 @@ class App:
                 f"**The paper setting is sized for a GPU** ({new.engine.field} field, {new.engine.n_samples} samples "
                 f"per ray, {new.engine.steps} steps), and this app runs on `{new.engine.device}`: its steps and each "
                 "evaluation of its views take minutes here (20 steps and their evaluation took 28 min on 2 cores)."
+            )
+        if new.eval.eval_tune_steps > 0:  # issue 40: the authors' scoring, labelled and costed before it starts
+            n = -(-92 // new.eval.eval_every)  # a built-in's first turn: 100 views, 8 of them the inputs
+            cost = "" if new.data.path else f" ({n} views on a built-in scene: about {fmt_time(n * TUNED_VIEW_S)})"
+            lines.append(
+                f"**Scored in {new.eval.words()}** when it ends: it looks at the test images, as the released code "
+                f"does. About {TUNED_VIEW_S:.0f} s a view at 200 px on 2 cores{cost}."
             )
         return "\n\n".join(lines) if lines else None
 
@@ -487,15 +500,7 @@ class App:
         self.compare.refresh()
         self.compare.follow(setup.cfg)
         self.views.unsnap_all()
-        cfg = self.cfg
-        self.train.show_run(
-            cfg.data.scene,
-            str(cfg.data.path) if cfg.data.path else None,
-            cfg.method,
-            cfg.data.config,
-            cfg.engine.steps,
-            cfg.preset,
-        )
+        self.train.show_run(run_choice(self.cfg, self.train.scorings))
         self.views.request_all()
         self.preview.request(delay=1.0)
 

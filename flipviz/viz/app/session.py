@@ -184,7 +184,8 @@ class TrainingSession(Observer):
         self.status = event.status
         self.message = event.message
         if "psnr" in event.metrics:
-            self.message = f"unobserved views PSNR {event.metrics['psnr']:.2f} dB" + (
+            scored = TrainConfig.from_settings(**event.metrics["settings"]).eval.words()  # flipviz's, or the authors'
+            self.message = f"PSNR {event.metrics['psnr']:.2f} dB in {scored}" + (
                 f" ({event.message})" if event.message else ""
             )
         log.warning("run %s at step %d%s", event.status, event.step, f": {self.message}" if self.message else "")
