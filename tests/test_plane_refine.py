@@ -295,3 +295,21 @@ def test_the_mirrored_poses_follow_the_plane_in_the_world_frame(tmp_path):
     inputs = [i for i in range(len(init)) if i not in mirrors.tolist()]
     torch.testing.assert_close(poses[inputs], init[inputs])
     tr.close()
+
+
+def test_the_plane_ramp_makes_its_first_steps_small(tmp_path):
+    """--plane-ramp: the plane's learning rate rises from 0, so its first Adam steps (full-size whatever the
+    gradient, lr per parameter) are a share of lr; without it the first step moves the shift by about lr."""
+    moved = {}
+    for ramp in (0.0, 0.1):  # 0.1 of 100 steps: the first step at lr / 10
+        tr = Trainer(
+            TrainConfig.from_settings(
+                scene="chair", res=16, steps=100, batch_rays=64, mirror_plane="official", plane_ramp=ramp,
+                plane_lr=1e-2, out=tmp_path / f"ramp{ramp}", no_rrd=True, images_every=0, checkpoint_every=0,
+            )
+        )  # fmt: skip
+        tr._step()
+        moved[ramp] = abs(float(tr.flip.plane.shift))
+        tr.close()
+    assert moved[0.0] > 5e-3, moved  # Adam's first step: of the order of lr (8.3e-3 measured)
+    assert moved[0.1] == pytest.approx(moved[0.0] / 10, rel=1e-3), moved  # the ramp's: a tenth of it

@@ -187,6 +187,9 @@ class FlipConfig:
     """The plane's Adam learning rate (radians of tilt, scene units of shift per step), decaying 100x."""
     plane_start: Annotated[float, Range(0.0, 1.0)] = 0.0
     """Fraction of the steps before the plane starts to move (its warm-up)."""
+    plane_ramp: Annotated[float, Range(0.0, 1.0)] = 0.0
+    """Fraction of the steps over which the plane's learning rate rises linearly from 0 once it moves (Adam's
+    first steps are full-size whatever the gradient); 0: none."""
     ba: bool = True
     """Bundle-adjust the mirrored poses (Flip methods)."""
     ba_start: Annotated[float | None, Range(0.0, 1.0)] = None

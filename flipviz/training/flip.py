@@ -286,6 +286,7 @@ class Flip:
         refine_plane = cfg.refine_plane and trained and bool(ts.mirror_ids)
         self.plane = MirrorPlane(mirrors.plane, device) if refine_plane else None
         self.plane_start = start + int(cfg.plane_start * span)
+        self.plane_ramp = int(cfg.plane_ramp * span)
         ba_start = (
             cfg.ba_start if cfg.ba_start is not None else (BA_START_WITH_PLANE if self.plane is not None else 0.0)
         )
@@ -382,6 +383,9 @@ class Flip:
             self.opt_pose.step()
         if self.opt_plane is not None and s >= self.plane_start:
             decay_lr(self.opt_plane, s - self.plane_start, max(1, self.steps - self.plane_start), PLANE_LR_DECAY)
+            if s - self.plane_start < self.plane_ramp:  # lr ramp: lr * (k + 1) / ramp at the k-th step it moves
+                for g in self.opt_plane.param_groups:
+                    g["lr"] *= (s - self.plane_start + 1) / self.plane_ramp
             self.opt_plane.step()
         return Action.GO_ON
 
