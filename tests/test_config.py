@@ -29,6 +29,7 @@ ADDED = [
     "eval_every",
     "lr_end",
     "entropy_weight",
+    "plane_ramp",
 ]  # since: read back at their defaults
 LATER = ["mirror_disagreement_limit"]  # since: read back as what runs saved before it did (no per-mirror verdict)
 

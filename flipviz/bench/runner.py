@@ -71,7 +71,8 @@ NOT_IN_KEY = (
 DEFAULTS = TrainConfig().to_dict()
 # Settings added after runs were stored, with the value those runs had: in a run's key only away from it, so
 # that those runs keep their keys (and the bench skips them) while a run that sets another gets a key of its own.
-LATER_SETTINGS = {k: DEFAULTS[k] for k in ("eval_views", "eval_tune_steps", "eval_every", "lr_end", "entropy_weight")}
+LATER = ("eval_views", "eval_tune_steps", "eval_every", "lr_end", "entropy_weight", "plane_ramp")
+LATER_SETTINGS = {k: DEFAULTS[k] for k in LATER}
 LATER_SETTINGS["mirror_disagreement_limit"] = float("inf")  # the gate dropped all mirrors or none before it
 
 
