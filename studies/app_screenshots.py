@@ -275,6 +275,14 @@ def probe_shots(args: Args) -> None:
         (args.out / "app_curves.png").write_bytes(screenshot_png(d))
 
 
+def asked(d, says: str, path: Path) -> None:
+    """Restart training and screenshot the question once it says `says`."""
+    button(d, "Restart training")
+    wait_until(lambda: says in d.page_source, 30, what=f"the question saying {says!r}")
+    time.sleep(1.0)  # (the modal's fade-in)
+    path.write_bytes(screenshot_png(d))
+
+
 def orbit_shots(args: Args) -> None:
     with chair_in_browser(args, unconfident_plane="drop") as (app, d):  # the chair's plane is confident: no change
         (args.out / "app.png").write_bytes(screenshot_png(d))
@@ -286,18 +294,12 @@ def orbit_shots(args: Args) -> None:
         (args.out / "app_snapped.png").write_bytes(screenshot_png(d))
         choose(d, "Setting", "authors")
         choose(d, "Scoring", "authors, every 4th view")
-        button(d, "Restart training")
-        wait_until(lambda: "Scored in the authors" in d.page_source, 30, what="the question naming the scoring")
-        time.sleep(1.0)  # (the modal's fade-in)
-        (args.out / "app_scoring.png").write_bytes(screenshot_png(d))
+        asked(d, "Scored in the authors", args.out / "app_scoring.png")
         button(d, "Keep this run")
         wait_until(lambda: not modal_open(d), 30, what="the question closed")
         choose(d, "Setting", "fast")
         choose(d, "Scene", "mug")
-        button(d, "Restart training")
-        wait_until(lambda: "Replace this run" in d.page_source, 30, what="the question before a restart")
-        time.sleep(1.0)  # (the modal's fade-in)
-        (args.out / "app_restart.png").write_bytes(screenshot_png(d))
+        asked(d, "Replace this run", args.out / "app_restart.png")
         button(d, "Replace the run")
         wait_until(
             lambda: app.setup is not None and app.setup.scene == "mug" and app.step >= args.steps_before,

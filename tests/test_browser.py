@@ -525,29 +525,32 @@ def test_6c_a_keyframe_at_your_pose_is_hidden_and_every_colour_is_in_the_legend(
     assert not missing(), f"no swatch in the legend of {missing()}"
 
 
+def ask_and_keep(d, says: str, name: str) -> None:
+    """Restart training, wait for the question to say `says`, screenshot it as `name`, keep the run."""
+    button(d, "Restart training")
+    wait_until(lambda: says in panel_text(d), 20, what=f"the question saying {says!r}")
+    shot(d, name)
+    button(d, "Keep this run")
+    wait_until(lambda: not modal_open(d), 30, what="the question closed")
+
+
 def test_7_restart_with_bl(app, browser):
     tab(browser, "Train")
     # issue 45 item 1: the paper setting on a CPU says it is sized for a GPU before it replaces anything
     run_dir, step = app.trainer.run_dir, app.step
     choose(browser, "Setting", "paper")
-    button(browser, "Restart training")
-    wait_until(lambda: "sized for a GPU" in panel_text(browser), 20, what="the paper setting's warning")
-    shot(browser, "7_ask_paper")
-    button(browser, "Keep this run")
-    wait_until(lambda: not modal_open(browser), 30, what="the question closed")
+    ask_and_keep(browser, "sized for a GPU", "7_ask_paper")
     wait_until(lambda: app.step > step + 5, 120, what="the kept run training on")
     assert app.trainer.run_dir == run_dir and app.cfg.preset == "fast"
     # issue 40 item 4: the authors' setting offers their scoring, labelled and costed before it starts
     choose(browser, "Setting", "authors")
     choose(browser, "Scoring", "authors, every 4th view")
-    button(browser, "Restart training")
-    wait_until(lambda: "Scored in the authors' protocol" in panel_text(browser), 20, what="the authors' scoring")
-    shot(browser, "7_ask_authors")
-    button(browser, "Keep this run")
-    wait_until(lambda: not modal_open(browser), 30, what="the question closed")
+    ask_and_keep(browser, "Scored in the authors' protocol", "7_ask_authors")
     assert app.trainer.run_dir == run_dir and app.cfg.eval.eval_tune_steps == 0
     choose(browser, "Setting", "fast")
-    assert app.train.scoring_dd.value == "flipviz"  # flipviz's setting is scored in flipviz's protocol
+    wait_until(  # flipviz's setting is scored in flipviz's protocol (the browser's choice reaches the server first)
+        lambda: app.train.scoring_dd.value == "flipviz" and app.train.scoring_dd.disabled, 20, what="flipviz's scoring"
+    )
     choose(browser, "Method", "bl")
     button(browser, "Restart training")
     wait_until(lambda: "Replace this run" in browser.page_source, 20, what="the question before a restart")
