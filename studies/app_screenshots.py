@@ -89,7 +89,11 @@ def snap_to(d, app: App, prefix: str) -> None:
     tab(d, "Views")
     choose(d, "View", next(k for k in app.snap.views if k.startswith(prefix)))
     button(d, "Snap to view")
-    time.sleep(1.0)
+    wait_until(  # the browser reported the snapped pose (a busy machine takes seconds)
+        lambda: any(v.snapped is not None and v.snapped.arrived for v in app.views.clients.values()),
+        60,
+        what="the browser at the snapped view",
+    )
 
 
 def side_by_side_shot(d, app: App, path: Path) -> None:

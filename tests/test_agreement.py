@@ -325,3 +325,18 @@ def test_the_mug_drops_its_mirrors_mid_training_and_the_chair_keeps_them(tmp_pat
     assert curves.dropped_at == next(e.step for e in mug_steps.steps if e.scalars["mirrors_trained"] == 0.0)
     assert curves.restarted  # the events' total grew by the steps before the drop
     assert np.all(np.isfinite(ratio)) and np.all(limit == 2.0) and ratio.max() > 2.0 and len(x) == len(ratio)
+
+
+def test_the_mirrored_cameras_chart_says_when_its_lines_lie_on_each_other():
+    """A refined plane's error turns every reflected camera by the same angle: until BA moves them one by one,
+    their 8 lines are drawn on each other and the chart showed one line with no word why."""
+    from flipviz.viz.app.mirror.curves import ONE_LINE, one_line_note
+
+    steps, same = np.arange(5.0), np.linspace(1.0, 0.2, 5)
+    float32 = same + 2e-6  # the reflections' errors in degrees, as training reports them, differ in float32
+    assert one_line_note((steps, same, float32, same.copy())) == ONE_LINE
+    apart = same.copy()
+    apart[-1] += 0.05  # BA moved one camera
+    assert one_line_note((steps, same, apart)) == ""
+    assert one_line_note((steps, same)) == ""  # one camera: nothing to say
+    assert one_line_note(()) == ""  # no data yet

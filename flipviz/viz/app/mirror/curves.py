@@ -24,6 +24,10 @@ POSE_TITLES = {
     True: "Mirrored cameras: rotation error (deg) vs their exact reflections",
     False: "Mirrored cameras: rotation BA applied (deg)",
 }  # no true plane: what BA moved
+ONE_LINE = (
+    "_The mirrored cameras' lines lie on each other: the refined plane turns every reflection alike, until BA"
+    " moves each camera on its own._"
+)
 PLANE_TITLES = {True: "Mirror plane: error vs the true plane", False: "Mirror plane: change from its start"}
 AGREE_TITLE = (
     "Mirrors vs inputs: squared error ratio on the object, all and each (judged once the NLL is on: dropped above"
@@ -43,6 +47,8 @@ class MirrorCurves:
         self.server, self.verdict = server, verdict
         self.names: list[str] = []  # the mirrored views' names (their inputs')
         self.folder = server.gui.add_folder("Over training", expand_by_default=True)
+        with self.folder:
+            self.one_line = server.gui.add_markdown("")  # above the charts: why the first shows one line
         self.poses: viser.GuiUplotHandle | None = None
         self.plane: viser.GuiUplotHandle | None = None
         self.agreement: viser.GuiUplotHandle | None = None
@@ -56,7 +62,7 @@ class MirrorCurves:
                 plot.remove()
         self.poses = self.plane = self.agreement = None
         self._plotted = ((), (), ())
-        self.verdict.content = ""
+        self.verdict.content = self.one_line.content = ""
         names = [c.source or c.camera.name for c in setup.cameras if c.kind == "mirror_init"]
         self.names = names
         if not names or setup.plane is None:
@@ -125,6 +131,8 @@ class MirrorCurves:
             return
         self._plotted = key
         self.verdict.content = verdict_text(curves, self.names)
+        if self.one_line.content != (note := one_line_note(poses)):
+            self.one_line.content = note
         if self.agreement is not None and len(agree) >= 4 and len(agree[0]) >= 2:
             agree = (*agree, *np.full((4 + len(self.names) - len(agree), len(agree[0])), np.nan))  # pooled-only runs
             limits = [v for v in (curves.limit, curves.mirror_limit) if np.isfinite(v)]
@@ -143,6 +151,15 @@ class MirrorCurves:
                 plot.title = title
             plot.data = data
             plot.visible = True
+
+
+def one_line_note(data: tuple[np.ndarray, ...]) -> str:
+    """ONE_LINE when every mirrored camera's line lies on the others (a refined plane's error turns each
+    reflection by the same angle, so until BA starts they draw one line), else ""."""
+    lines = np.asarray(data[1:]) if len(data) > 2 else None
+    # alike within a thousandth of a degree (in float32 they come 2e-6 deg apart)
+    alike = lines is not None and np.allclose(lines, lines[:1], rtol=0.0, atol=1e-3, equal_nan=True)
+    return ONE_LINE if alike else ""
 
 
 def verdict_text(curves: RunCurves, names: list[str]) -> str:
