@@ -33,6 +33,7 @@ import viser
 from flipviz.data import SceneData, TooWide, load_scene
 from flipviz.data.cameras import Camera
 from flipviz.data.dataset import Plane
+from flipviz.data.protocol import N_OBSERVED, TURN
 from flipviz.errors import UserError
 from flipviz.files import inside_roots, signals_deferred
 from flipviz.geometry.mirror import make_mirror_set
@@ -392,7 +393,7 @@ class App:
                 "evaluation of its views take minutes here (20 steps and their evaluation took 28 min on 2 cores)."
             )
         if new.eval.eval_tune_steps > 0:  # issue 40: the authors' scoring, labelled and costed before it starts
-            n = -(-92 // new.eval.eval_every)  # a built-in's first turn: 100 views, 8 of them the inputs
+            n = len(range(0, TURN - N_OBSERVED, new.eval.eval_every))  # a built-in's first turn less its inputs
             cost = "" if new.data.path else f" ({n} views on a built-in scene: about {fmt_time(n * TUNED_VIEW_S)})"
             lines.append(
                 f"**Scored in {new.eval.words()}** when it ends: it looks at the test images, as the released code "

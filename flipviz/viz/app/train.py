@@ -227,7 +227,6 @@ class TrainPanel:
         self.restart_md.content = ""
         self.pace.clear()
         self._show_data_field()
-        self.scoring_dd.disabled = run.preset == "fast"  # (a fast run started with another scoring keeps it shown)
 
     def set_controls(self, status: str) -> None:
         """Pause only while running, Resume only while paused."""
