@@ -3,6 +3,7 @@ inputs are measured on the training batches and dropped mid-training."""
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -67,7 +68,7 @@ def chair16():
     return load_builtin("chair", 16)
 
 
-def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(tmp_path, chair16):
+def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(tmp_path, chair16, caplog):
     cfg = TrainConfig.from_settings(
         scene="chair",
         res=16,
@@ -90,7 +91,11 @@ def test_the_gate_drops_disagreeing_mirrors_and_then_trains_on_the_inputs_alone(
     assert flip.after_step(20) is Action.GO_ON  # below the limit: kept
     assert flip.dropped_at is None
     flip.agreement.mirror = 2.1
-    assert flip.after_step(30) is Action.RESTART_FIELD  # --after-drop restart: a fresh field
+    with torch.no_grad():
+        flip.plane.tilt[0] = math.tan(math.radians(3.0))  # the refined plane has turned 3 degrees since the join
+    with caplog.at_level(logging.WARNING, logger="flipviz.training"):
+        assert flip.after_step(30) is Action.RESTART_FIELD  # --after-drop restart: a fresh field
+    assert "the plane has turned 3.00 deg and moved 0.000 since the join" in caplog.text  # what a drop reports
     assert flip.dropped_at == 31
     assert not bool((flip.ts.bank.view[flip.sample(4000, gen, 31)] >= first_mirror).any())  # only the inputs' rays now
     plane = flip.plane.tilt.detach().clone()

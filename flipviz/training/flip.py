@@ -410,15 +410,18 @@ class Flip:
             self.mirror_dropped_at[i], self.frozen[i] = step, now[i]
         left = self.n_dropped == len(self.mirror_dropped_at)
         self.dropped_at = step if left else None
+        turned = self.plane_turn()
         log.warning(
             "step %d: mirrored views %s disagree with the inputs (their own ratios %s; all kept ones %.2f; limits "
-            "%.2f each, %.2f pooled: training/flip.py, Agreement); %s",
+            "%.2f each, %.2f pooled: training/flip.py, Agreement; the plane has turned %.2f deg and moved %.3f "
+            "since the join); %s",
             step,
             ", ".join(map(str, leaving)),
             ", ".join(f"{ratios[i]:.2f}" for i in leaving),
             pooled,
             self.mirror_limit,
             self.disagreement_limit,
+            *turned,
             "training without any" if left else f"training on with {len(self.mirror_dropped_at) - self.n_dropped}",
         )
         if self.after_drop == "rollback":
@@ -462,6 +465,11 @@ class Flip:
             "lr_pose": float(self.opt_pose.param_groups[0]["lr"]) if self.opt_pose is not None else 0.0,
             "lr_plane": float(self.opt_plane.param_groups[0]["lr"]) if self.opt_plane is not None else 0.0,
         }
+
+    def plane_turn(self) -> tuple[float, float]:
+        """(degrees, scene units) the refined plane has turned and moved since the join; 0 when not refined."""
+        plane = self.current_plane()
+        return plane_error(plane, self.mirrors.plane) if plane is not None else (0.0, 0.0)
 
     def current_plane(self) -> Plane | None:
         """The refined plane (None when the plane is not refined)."""
