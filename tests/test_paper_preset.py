@@ -86,7 +86,7 @@ def test_the_app_trains_at_200_px_and_the_command_line_at_100():
 @pytest.mark.skipif(not (LEGO / "transforms_test.json").is_file(), reason="needs the NeRF-synthetic lego")
 @pytest.mark.skipif(shutil.which("timeout") is None, reason="needs coreutils' timeout")
 @pytest.mark.slow
-def test_gpu_paper_script_runs_on_the_cpu_with_a_tiny_step_count(tmp_path):
+def test_gpu_paper_script_runs_on_the_cpu_with_a_tiny_step_count_and_skips_finished_runs(tmp_path):
     env = dict(
         os.environ,
         DEVICE="cpu",
@@ -94,22 +94,26 @@ def test_gpu_paper_script_runs_on_the_cpu_with_a_tiny_step_count(tmp_path):
         STEPS="2",
         BATCH="64",
         RES="16",
+        EVAL="--eval-views orbit --eval-tune-steps 2 --eval-every 48",  # the authors' protocol, 4 views
         LEGO=str(LEGO),
         OUT=str(tmp_path / "out"),
         PYTHON=str(Path(os.sys.executable)),
         PYTHONPATH=str(ROOT),
     )
-    r = subprocess.run(
-        ["bash", str(ROOT / "studies/gpu_paper.sh")], env=env, capture_output=True, text=True, timeout=600
-    )
+    script = ["bash", str(ROOT / "studies/gpu_paper.sh")]
+    r = subprocess.run(script, env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     summary = json.loads((tmp_path / "out/summary.json").read_text())
-    assert summary["preset"] == "paper" and [x["method"] for x in summary["runs"]] == ["bl", "flip+u"]
+    assert summary["preset"] == "paper" and [x["method"] for x in summary["runs"]] == ["bl", "bl+u", "flip+u"]
     for run in summary["runs"]:
-        assert run["steps"] == 2 and run["steps_per_s"] > 0 and 0 < run["psnr"] < 60
+        assert run["steps"] == 2 and run["steps_per_s"] > 0 and 0 < run["psnr"] < 60 and run["scored_views"] == 4
     settings = json.loads((tmp_path / "out/lego-flip_u/metrics.json").read_text())["settings"]
     assert (settings["field"], settings["n_samples"], settings["preset"]) == ("nerf", 128, "paper")
     assert "PSNR" in r.stdout
+    written = {p: p.stat().st_mtime_ns for p in (tmp_path / "out").glob("lego-*/metrics.json")}
+    again = subprocess.run(script, env=env, capture_output=True, text=True, timeout=600)  # a later session
+    assert again.returncode == 0 and again.stdout.count("already trained 2 steps: skipped") == 3, again.stdout
+    assert {p: p.stat().st_mtime_ns for p in written} == written  # nothing trained or scored again
 
 
 def test_a_preset_is_a_whole_config_its_name_only_a_label_and_the_command_line_parsed_once(monkeypatch):
