@@ -47,9 +47,10 @@ class Args:
 
 class Curves(Observer):
     """The unobserved views' PSNR at each render, and the training batches' PSNR (a running mean over
-    the steps between renders)."""
+    the steps between renders), written to `path` after each render: a stopped run keeps its curve."""
 
-    def __init__(self) -> None:
+    def __init__(self, path: Path, settings: dict) -> None:
+        self.path, self.settings = path, settings
         self.rows: list[dict] = []
         self.train: list[float] = []
 
@@ -61,11 +62,19 @@ class Curves(Observer):
         self.rows.append({"step": e.step, "test_psnr": e.scalars.get("test_psnr"), "train_psnr": train})
         self.train = []
         print(f"step {e.step}: test {e.scalars.get('test_psnr', float('nan')):.2f}, batches {train:.2f}", flush=True)
+        self.write()
+
+    def write(self, psnr: float | None = None) -> None:
+        """The curve so far; `psnr`: the run's final score, once it has ended."""
+        write_json(self.path, {"settings": self.settings, "psnr": psnr, "curve": self.rows})
 
 
 def main(a: Args) -> None:
     torch.set_num_threads(a.threads)
-    curves = Curves()
+    ba = f"_refine_{a.refine}" if a.method in ("flip", "flip+u") else ""  # B/L, B/L+U and Upper move no pose
+    name = f"{a.data.name if a.data else a.scene}_c{a.config}_{a.method}_{a.steps}{ba}"
+    settings = vars(a) | {"out": str(a.out), "data": str(a.data) if a.data else None}
+    curves = Curves(a.out / f"{name}.json", settings)
     with tempfile.TemporaryDirectory() as tmp:
         cfg = preset_config(
             "authors",
@@ -84,10 +93,7 @@ def main(a: Args) -> None:
         trainer = Trainer(cfg)
         trainer.add_observer(curves)
         m = trainer.run()
-    ba = f"_refine_{a.refine}" if a.method in ("flip", "flip+u") else ""  # B/L, B/L+U and Upper move no pose
-    name = f"{a.data.name if a.data else a.scene}_c{a.config}_{a.method}_{a.steps}{ba}"
-    settings = vars(a) | {"out": str(a.out), "data": str(a.data) if a.data else None}
-    write_json(a.out / f"{name}.json", {"settings": settings, "psnr": m["psnr"], "curve": curves.rows})
+    curves.write(m["psnr"])
     plot(a.out)
 
 
@@ -100,7 +106,8 @@ def plot(out: Path) -> None:
 
     fig, (test, train) = plt.subplots(1, 2, figsize=(10, 4))
     for path in sorted(out.glob("*.json")):
-        run, label = read_json(path), path.stem
+        run = read_json(path)
+        label = path.stem + ("" if run["psnr"] is not None else " (unfinished)")
         steps = [r["step"] for r in run["curve"]]
         test.plot(steps, [r["test_psnr"] for r in run["curve"]], marker=".", label=label)
         train.plot(steps, [r["train_psnr"] for r in run["curve"]], linestyle="--", label=label)
