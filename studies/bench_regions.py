@@ -65,16 +65,11 @@ class TileRecorder:
     def update(self, flip: F.Flip, idx: torch.Tensor, out: dict, target: torch.Tensor, view: torch.Tensor) -> None:
         a, n_tiles = flip.agreement, self.across * self.down
         sq = (out["rgb"] - target).pow(2).sum(-1)  # (R,)
-        obj = ((1.0 - target).abs().amax(-1) > F.OBJECT_COLOUR) | (out["opacity"] > 0.5)  # (R,) as Agreement
-        sel = obj & a.is_mirror[view]
+        sel = F.object_rays(out, target) & a.is_mirror[view]  # (R,) the mirrored object rays, as Agreement's
         key = a.slot[view[sel]] * n_tiles + self.tiles(flip, idx)[sel]  # (K,) mirror * T + tile
-        size = len(a.per_mirror) * n_tiles
-        sums = torch.zeros(size, dtype=torch.float64).index_add_(0, key, sq[sel].double())
-        counts = torch.bincount(key, minlength=size)
-        x = sums / counts.clamp(min=1)
-        old = self.ema if self.ema is not None else torch.full((size,), float("nan"), dtype=torch.float64)
-        new = torch.where(old.isnan(), x, (1.0 - F.AGREEMENT_EMA) * old + F.AGREEMENT_EMA * x)
-        self.ema = torch.where(counts >= F.MIN_MIRROR_RAYS, new, old)
+        if self.ema is None:
+            self.ema = torch.full((len(a.per_mirror) * n_tiles,), float("nan"), dtype=torch.float64)
+        self.ema = F.running_means(self.ema, key, sq[sel])
 
     def record(self, flip: F.Flip, step: int) -> None:
         """The ratios after step `step`, once the gate would judge them (the NLL on)."""

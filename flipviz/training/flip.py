@@ -181,10 +181,26 @@ def objective(cfg: FlipConfig, steps: int, beta_min: float, start: int = 0) -> O
 
 
 # ---------------------------------------------------------------------------------- agreement
+def object_rays(out: dict[str, Tensor], target: Tensor) -> Tensor:
+    """(R,) bool: the rays on the object (the target is not the white background, or the render is opaque)."""
+    return ((1.0 - target).abs().amax(-1) > OBJECT_COLOUR) | (out["opacity"] > 0.5)
+
+
+def running_means(old: Tensor, key: Tensor, x: Tensor) -> Tensor:
+    """(K,) float64 on the CPU: each key's running mean (EMA, AGREEMENT_EMA) of the values `x` (N,) whose key
+    (N,) it is; a batch moves a key's mean when it holds at least MIN_MIRROR_RAYS of them (`old`: NaN until then)."""
+    n = len(old)
+    sums = torch.zeros(n, dtype=x.dtype, device=x.device).index_add_(0, key, x)  # (K,)
+    counts = torch.bincount(key, minlength=n)  # (K,)
+    mean = (sums / counts.clamp(min=1)).double().cpu()
+    new = torch.where(old.isnan(), mean, (1.0 - AGREEMENT_EMA) * old + AGREEMENT_EMA * mean)
+    return torch.where((counts >= MIN_MIRROR_RAYS).cpu(), new, old)
+
+
 class Agreement:
     """Do the mirrored views agree with the inputs? Measured on the training batches, at no cost.
 
-    On the object's rays (the target is not the white background, or the render is opaque), a
+    On the object's rays (`object_rays`), a
     running mean (EMA, AGREEMENT_EMA per step) of the squared error of the mirrored rays and of
     the input rays, both against the same live field:
 
@@ -207,24 +223,14 @@ class Agreement:
     def update(self, out: dict[str, Tensor], target: Tensor, view: Tensor) -> None:
         with torch.no_grad():
             sq = (out["rgb"] - target).pow(2).sum(-1)  # (R,)
-            obj = ((1.0 - target).abs().amax(-1) > OBJECT_COLOUR) | (out["opacity"] > 0.5)  # (R,)
+            obj = object_rays(out, target)  # (R,)
             m = self.is_mirror[view]
             for name, sel in (("mirror", obj & m), ("input", obj & ~m)):
                 if bool(sel.any()):
                     x, old = float(sq[sel].mean()), getattr(self, name)
                     setattr(self, name, x if old != old else (1.0 - AGREEMENT_EMA) * old + AGREEMENT_EMA * x)
-            self._update_each(sq, obj & m, view)
-
-    def _update_each(self, sq: Tensor, sel: Tensor, view: Tensor) -> None:
-        """Each mirror's running mean of its object rays' squared error in this batch (`sel`: those rays)."""
-        slot = self.slot[view[sel]]  # (K,) which mirror each selected ray is of
-        n = len(self.per_mirror)
-        sums = torch.zeros(n, dtype=sq.dtype, device=sq.device).index_add_(0, slot, sq[sel])  # (M,)
-        counts = torch.bincount(slot, minlength=n)  # (M,)
-        x = (sums / counts.clamp(min=1)).double().cpu()
-        old = self.per_mirror
-        new = torch.where(old.isnan(), x, (1.0 - AGREEMENT_EMA) * old + AGREEMENT_EMA * x)
-        self.per_mirror = torch.where((counts >= MIN_MIRROR_RAYS).cpu(), new, old)
+            sel = obj & m  # each mirror's own running mean, over its object rays in this batch
+            self.per_mirror = running_means(self.per_mirror, self.slot[view[sel]], sq[sel])
 
     @property
     def ratio(self) -> float:
@@ -540,7 +546,7 @@ class Flip:
         refined = self.current_plane()
         if refined is not None:  # --refine-plane: "used" is where the plane started, "refined" where it is now
             rep["refined"] = refined.to_dict()
-            rep["refined_change_deg"], rep["refined_change_offset"] = plane_error(refined, self.mirrors.plane)
+            rep["refined_change_deg"], rep["refined_change_offset"] = self.plane_turn()
             if true is not None:
                 rep["refined_error_deg"], rep["refined_error_offset"] = plane_error(refined, true)
         return rep
