@@ -673,6 +673,7 @@ def test_the_pixel_probe_reads_a_clicked_pixel_of_the_snapped_view(app):
             await c.click_scene(cam.center, dirs[row * cam.width + col])
             await c.wait_for(lambda m: m["type"] == "IcosphereMessage" and m["name"] == "/probe", timeout=60, start=n)
             marker = await c.wait_for(lambda m: m["type"] == "SetPositionMessage" and m["name"] == "/probe", start=n)
+            await c.wait_for(lambda m: "**Pixel (" in str(m), start=n)  # the table follows the marker
             read = (app.probe.reading, app.probe.text.content)  # issue 45: snapped to another view, they go
             n = len(c.messages)
             await c.set_value("View", other)
