@@ -489,15 +489,19 @@ def test_compare_a_and_b_split_and_difference_and_both_scores(app, tmp_path):
             await c.click("Load run B")
             await until(lambda: app.compare.b is not None, lambda: app.compare.status_md.content, timeout=60)
             bg = lambda m: m["type"] == "BackgroundImageMessage" and m["rgb_data"]  # noqa: E731
-            await asyncio.sleep(1.0)  # B is on: the views are asked again (a render of A alone may still arrive)
-            n = len(c.messages)
-            await c.set_value("Divider", 0.5)
-            img = jpeg((await c.wait_for(bg, start=n, timeout=60))["rgb_data"])[..., ::-1]
-            assert img.shape[:2] == size and app.compare.mode_dd.value == "split"
             ref = b_render()
             body = slice(size[0] // 3, size[0])  # below the A / B labels
             left, right = slice(0, size[1] // 2 - 2), slice(size[1] // 2 + 2, size[1])
-            assert psnr(img[body, right], ref[body, right]) > 28  # B right of the divider
+            n = len(c.messages)
+            await c.set_value("Divider", 0.5)
+
+            # B is on: the views are asked again, but a render of A alone begun before may still arrive first
+            def split(m: dict) -> bool:  # B right of the divider
+                img = jpeg(m["rgb_data"])[..., ::-1] if bg(m) else None
+                return img is not None and img.shape[:2] == size and psnr(img[body, right], ref[body, right]) > 28
+
+            img = jpeg((await c.wait_for(split, start=n, timeout=60))["rgb_data"])[..., ::-1]
+            assert img.shape[:2] == size and app.compare.mode_dd.value == "split"
             assert psnr(img[body, left], ref[body, left]) < psnr(img[body, right], ref[body, right]) - 3  # A left of it
             # the divider moves to a quarter of the width: a white line there
             n = len(c.messages)
@@ -721,18 +725,19 @@ def test_a_test_camera_where_a_mirror_lands_is_drawn_around_it_not_on_it(app):
     """Issue 26 item 5: a test frustum and a mirrored frustum at one pose were drawn line on line. The
     test frustum there is now larger, so the two nest (the chair's mirrors land near its test views)."""
 
-    async def go():
-        async with ViserTestClient(url(app)) as c:
-            await c.send_camera((4.0, -4.0, 3.0))
-            await c.wait_for(lambda m: m["type"] == "CameraFrustumMessage" and m["name"].startswith("/run/mirrors/"))
-            await asyncio.sleep(0.5)  # the rest of the scene's frame
-            return {m["name"]: m["props"]["scale"] for m in c.messages if m["type"] == "CameraFrustumMessage"}
-
-    drawn = run(go())
     cams = {}
     for group, kind in (("tests", "test"), ("mirrors", "mirror_init")):
         of_kind = [ci.camera for ci in app.setup.cameras if ci.kind == kind]
         cams.update({f"/run/{group}/{k}": cam for k, cam in enumerate(of_kind)})
+
+    async def go():
+        async with ViserTestClient(url(app)) as c:
+            await c.send_camera((4.0, -4.0, 3.0))
+            frusta = lambda: {m["name"] for m in c.messages if m["type"] == "CameraFrustumMessage"}  # noqa: E731
+            await until(lambda: set(cams) <= frusta(), lambda: set(cams) - frusta(), timeout=60)
+            return {m["name"]: m["props"]["scale"] for m in c.messages if m["type"] == "CameraFrustumMessage"}
+
+    drawn = run(go())
     base = app.scene.scale
     tests, mirrors = ([n for n in drawn if n.startswith(f"/run/{g}/")] for g in ("tests", "mirrors"))
     pairs = [(t, m) for t in tests for m in mirrors if np.linalg.norm(cams[t].center - cams[m].center) < base]
