@@ -124,6 +124,7 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
         threads = todo[0].threads
         pool = ProcessPoolExecutor(n, mp_context=ctx, initializer=_init_worker, initargs=(threads, slots))
         futures = {pool.submit(_run_in_worker, t): t for t in todo}
+        reaper = getattr(pool, "_executor_manager_thread", None)  # it reaps the workers when the pool breaks
         tasks_this_round = list(todo)
         broken: list[RunTask] = []
         workers_seen: dict = {}  # pid -> process, taken when the pool breaks (shutdown forgets them)
@@ -146,11 +147,14 @@ def run_local(tasks: list[RunTask], workers: int, on_result: Callable[[dict], No
             raise
         finally:
             pool.shutdown(wait=not broken, cancel_futures=True)
-        for proc in workers_seen.values():  # the pool stopped the others: each saves its checkpoint first
-            proc.join(STOP_GRACE_S)
+        if workers_seen and reaper is not None:  # the pool stopped the others: each saves its checkpoint first,
+            reaper.join(STOP_GRACE_S)  # and this thread of the pool's waits for (reaps) each worker
+        for proc in workers_seen.values():  # one that did not stop in time is killed
             if proc.is_alive():
                 proc.kill()
                 proc.join()
+        if reaper is not None:  # a worker's exit code is known once the pool's thread is done: asked earlier, it
+            reaper.join(STOP_GRACE_S)  # can read None, a stopped run counted as killed (seen on a busy CI machine)
         todo = []
         for t in broken:
             res = read_json(Path(t.run_dir) / RESULT_FILE)
